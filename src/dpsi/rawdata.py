@@ -1,0 +1,302 @@
+"""The raw dataset a user drops under ``raw/<dataset>/`` and its up-front validation (docs/raw-format.md).
+
+Layout (lengths in m, angles in rad, time in s, all poses in the robot base frame)::
+
+    raw/<dataset>/
+        datapoints.csv                 id,motion,effector,level,role,material
+        dataset.yaml                   optional: table_z, workspace {lo, hi}, effectors {name: {kind|obj}}
+        trajectories/<motion>.csv      planner trajectory t,x,y,z,yaw of each motion used
+        <id>/trajectory.csv            optional: this datapoint's own planner trajectory (overrides)
+        <id>/<state>/view_<k>.<ply|pcd|xyz|npy>            camera views, points in the camera frame ...
+        <id>/<state>/view_<k>.transform.<txt|csv|npy>      ... each with its camera-to-base 4x4 transform
+        <id>/<state>_fused.<ply|pcd|xyz|npy>                or: the fused, closed object cloud
+        <id>/<state>_mesh.<obj|ply>                         or: a watertight mesh
+
+``<state>`` is ``before`` or ``after``; each state is given in exactly one of the three forms and enters
+the reconstruction at the matching stage (fusion, meshing, or filling).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from dpsi.effectors import BUILT_IN
+from dpsi.motions import MOTIONS, read_waypoints
+from dpsi.pointclouds import (CLOUD_SUFFIXES, MESH_SUFFIXES, TRANSFORM_SUFFIXES, View, atomic_output,
+                              check_points, check_rigid, read_mesh, read_points, read_transform, write_points,
+                              write_transform)
+from dpsi.reconstruction.meshing import is_watertight
+
+COLUMNS = ("id", "motion", "effector", "level", "role", "material")
+ROLES = ("train", "validation", "ood")
+STATES = ("before", "after")
+EFFECTOR_KINDS = tuple(BUILT_IN)
+_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+_VIEW = re.compile(r"^view_(\d+)$")
+
+
+class RawDataError(ValueError):
+    """The raw dataset is incomplete or malformed; the message names the file and the problem."""
+
+
+@dataclass(frozen=True)
+class StateSource:
+    """Where one state (before/after) of a datapoint comes from: ``form`` 'views' (``paths`` are pairs
+    (cloud, transform)), 'fused' or 'mesh' (``paths`` holds the one file)."""
+
+    form: str
+    paths: tuple
+
+    def load(self):
+        """The state's data: a list of :class:`~dpsi.pointclouds.View`, an (n, 3) cloud in m, or a mesh."""
+        if self.form == "views":
+            return [View(read_points(c), read_transform(t)) for c, t in self.paths]
+        if self.form == "fused":
+            return read_points(self.paths[0])
+        return read_mesh(self.paths[0])
+
+
+@dataclass(frozen=True)
+class EffectorSpec:
+    """An effector of the dataset: a built-in ``kind`` (rectangle/round/cylinder) or a mesh file ``obj``."""
+
+    name: str
+    kind: str | None = None
+    obj: Path | None = None
+
+
+@dataclass(frozen=True)
+class RawDatapoint:
+    """One row of the datapoints table with its planner ``trajectory`` file and the sources of its states."""
+
+    id: str
+    motion: str
+    effector: str
+    level: int
+    role: str
+    material: str
+    trajectory: Path
+    before: StateSource
+    after: StateSource
+
+
+@dataclass(frozen=True)
+class RawDataset:
+    """A validated raw dataset: ``table_z`` (m), workspace box corners ``workspace`` ((3,), (3,)) in m or
+    ``None``, effectors by name and datapoints in table order."""
+
+    root: Path
+    table_z: float
+    workspace: tuple[np.ndarray, np.ndarray] | None
+    effectors: dict[str, EffectorSpec]
+    datapoints: tuple[RawDatapoint, ...]
+
+
+def _fail(path: Path, problem: str):
+    raise RawDataError(f"{path}: {problem}")
+
+
+def _read_config(root: Path) -> tuple[float, tuple | None, dict[str, EffectorSpec]]:
+    path = root / "dataset.yaml"
+    effectors = {name: EffectorSpec(name, kind=name) for name in EFFECTOR_KINDS}
+    if not path.exists():
+        return 0.0, None, effectors
+    try:
+        cfg = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as e:
+        _fail(path, f"not valid YAML ({e})")
+    if not isinstance(cfg, dict):
+        _fail(path, "must be a mapping with keys table_z, workspace, effectors")
+    unknown = set(cfg) - {"table_z", "workspace", "effectors"}
+    if unknown:
+        _fail(path, f"unknown key(s) {sorted(unknown)}; allowed: table_z, workspace, effectors")
+    table_z = cfg.get("table_z", 0.0)
+    if not isinstance(table_z, (int, float)) or not np.isfinite(table_z):
+        _fail(path, f"table_z must be a number in m, not {table_z!r}")
+    workspace = None
+    if "workspace" in cfg:
+        ws = cfg["workspace"]
+        try:
+            lo, hi = np.asarray(ws["lo"], float), np.asarray(ws["hi"], float)
+        except (TypeError, KeyError, ValueError):
+            _fail(path, "workspace must be {lo: [x, y, z], hi: [x, y, z]} in m")
+        if lo.shape != (3,) or hi.shape != (3,) or not (lo < hi).all():
+            _fail(path, f"workspace lo {lo.tolist()} must be below hi {hi.tolist()} in x, y and z")
+        workspace = (lo, hi)
+    for name, spec in (cfg.get("effectors") or {}).items():
+        if not isinstance(spec, dict) or len(spec) != 1 or not {"kind", "obj"} & set(spec):
+            _fail(path, f"effector {name!r} needs exactly one of kind: {list(EFFECTOR_KINDS)} or obj: <file>")
+        if "kind" in spec:
+            if spec["kind"] not in EFFECTOR_KINDS:
+                _fail(path, f"effector {name!r} has unknown kind {spec['kind']!r}; use {list(EFFECTOR_KINDS)}")
+            effectors[name] = EffectorSpec(name, kind=spec["kind"])
+        else:
+            obj = root / spec["obj"]
+            try:
+                mesh = read_mesh(obj)
+            except (OSError, ValueError) as e:
+                _fail(path, f"effector {name!r}: {e}")
+            if not is_watertight(mesh):
+                _fail(obj, f"effector {name!r} mesh is not watertight")
+            effectors[name] = EffectorSpec(name, obj=obj)
+    return float(table_z), workspace, effectors
+
+
+def _read_table(root: Path, effectors: dict[str, EffectorSpec]) -> pd.DataFrame:
+    path = root / "datapoints.csv"
+    if not path.is_file():
+        _fail(path, "datapoints table not found")
+    try:
+        df = pd.read_csv(path, dtype=str, keep_default_na=False)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
+        _fail(path, f"not a readable CSV file ({e})")
+    missing = [c for c in COLUMNS if c not in df.columns]
+    if missing:
+        _fail(path, f"missing column(s) {missing}; expected {list(COLUMNS)}")
+    if df.empty:
+        _fail(path, "has no datapoints")
+    for row, r in enumerate(df.itertuples(index=False), start=2):
+        where = f"line {row}"
+        if not _ID.match(r.id):
+            _fail(path, f"{where}: id {r.id!r} must be letters, digits, '_', '-' or '.'")
+        if r.motion not in MOTIONS:
+            _fail(path, f"{where}: unknown motion {r.motion!r}; known motions are {sorted(MOTIONS)}")
+        if r.effector not in effectors:
+            _fail(path, f"{where}: unknown effector {r.effector!r}; known effectors are {sorted(effectors)}")
+        tied = MOTIONS[r.motion].effector
+        if tied is not None and effectors[r.effector].kind not in (None, tied):
+            _fail(path, f"{where}: motion {r.motion} is made with the {tied} effector, not {r.effector}")
+        if r.level not in ("1", "2"):
+            _fail(path, f"{where}: level must be 1 or 2, not {r.level!r}")
+        expected = MOTIONS[r.motion].level
+        if expected is not None and int(r.level) != expected:
+            _fail(path, f"{where}: motion {r.motion} belongs to level {expected}, not {r.level}")
+        if r.role not in ROLES:
+            _fail(path, f"{where}: role must be one of {list(ROLES)}, not {r.role!r}")
+        if not r.material.strip():
+            _fail(path, f"{where}: material is empty")
+    dup = df["id"][df["id"].duplicated()].tolist()
+    if dup:
+        _fail(path, f"duplicate datapoint id(s) {sorted(set(dup))}")
+    return df
+
+
+def _one(folder: Path, stem: str, suffixes: tuple[str, ...]) -> list[Path]:
+    return [folder / f"{stem}{s}" for s in suffixes if (folder / f"{stem}{s}").is_file()]
+
+
+def _state_source(folder: Path, state: str) -> StateSource:
+    """Find and fully validate the one form in which ``state`` is given under the datapoint ``folder``."""
+    views_dir = folder / state
+    fused = _one(folder, f"{state}_fused", CLOUD_SUFFIXES)
+    meshes = _one(folder, f"{state}_mesh", MESH_SUFFIXES)
+    forms = [f for f, present in (("views", views_dir.is_dir()), ("fused", fused), ("mesh", meshes)) if present]
+    if len(forms) != 1 or len(fused) > 1 or len(meshes) > 1:
+        _fail(folder, f"the {state} state must be given in exactly one form ({state}/ views, one "
+                      f"{state}_fused cloud or one {state}_mesh); found {forms or 'none'}")
+    try:
+        if forms == ["fused"]:
+            read_points(fused[0])
+            return StateSource("fused", (fused[0],))
+        if forms == ["mesh"]:
+            if not is_watertight(read_mesh(meshes[0])):
+                _fail(meshes[0], "mesh is not watertight (every edge must join exactly two consistently "
+                                 "wound faces)")
+            return StateSource("mesh", (meshes[0],))
+        pairs = []
+        clouds = sorted((p for p in views_dir.iterdir() if _VIEW.match(p.name.split(".")[0])
+                         and ".transform." not in p.name), key=lambda p: int(_VIEW.match(p.name.split(".")[0])[1]))
+        for cloud in clouds:
+            transforms = _one(views_dir, f"{cloud.name.split('.')[0]}.transform", TRANSFORM_SUFFIXES)
+            if len(transforms) != 1:
+                _fail(cloud, f"needs exactly one camera-to-base transform {cloud.name.split('.')[0]}.transform"
+                             f"{{{','.join(TRANSFORM_SUFFIXES)}}}, found {len(transforms)}")
+            read_points(cloud)
+            read_transform(transforms[0])
+            pairs.append((cloud, transforms[0]))
+        if not pairs:
+            _fail(views_dir, "contains no view_<k> point clouds")
+        indices = sorted(int(_VIEW.match(c.name.split(".")[0])[1]) for c, _ in pairs)
+        if indices != list(range(len(indices))):
+            _fail(views_dir, f"views must be numbered view_0 … view_{len(indices) - 1} without gaps; "
+                             f"found {indices}")
+        return StateSource("views", tuple(pairs))
+    except (OSError, ValueError) as e:
+        if isinstance(e, RawDataError):
+            raise
+        raise RawDataError(str(e)) from None
+
+
+def load_raw_dataset(root: str | os.PathLike) -> RawDataset:
+    """Validate the whole raw dataset under ``root`` (every table row, file, cloud, transform, mesh and
+    trajectory is read once) and describe it. Raises :class:`RawDataError` naming the first bad file."""
+    root = Path(root)
+    if not root.is_dir():
+        _fail(root, "raw dataset folder not found")
+    table_z, workspace, effectors = _read_config(root)
+    df = _read_table(root, effectors)
+    datapoints = []
+    checked_trajectories: set[Path] = set()
+    for r in df.itertuples(index=False):
+        folder = root / r.id
+        if not folder.is_dir():
+            _fail(folder, f"folder of datapoint {r.id} (listed in datapoints.csv) not found")
+        trajectory = folder / "trajectory.csv"
+        if not trajectory.is_file():
+            trajectory = root / "trajectories" / f"{r.motion}.csv"
+        if trajectory not in checked_trajectories:
+            try:
+                read_waypoints(trajectory)
+            except (OSError, ValueError) as e:
+                raise RawDataError(f"{e} (planner trajectory of datapoint {r.id}, motion {r.motion})") from None
+            checked_trajectories.add(trajectory)
+        before, after = (_state_source(folder, s) for s in STATES)
+        if "views" in (before.form, after.form) and workspace is None:
+            _fail(root / "dataset.yaml", f"datapoint {r.id} has camera views, so a workspace box is needed "
+                                         "for fusion (workspace: {lo: [x, y, z], hi: [x, y, z]})")
+        datapoints.append(RawDatapoint(r.id, r.motion, r.effector, int(r.level), r.role, r.material,
+                                       trajectory, before, after))
+    return RawDataset(root, table_z, workspace, effectors, tuple(datapoints))
+
+
+def write_views(folder: str | os.PathLike, views: list[View], suffix: str = ".ply",
+                transform_suffix: str = ".txt") -> None:
+    """Write camera ``views`` as ``view_<k><suffix>`` plus ``view_<k>.transform<transform_suffix>`` into
+    ``folder`` (created if needed). Everything is validated before anything is written, and each file is
+    written atomically."""
+    folder = Path(folder)
+    if not views:
+        raise RawDataError(f"{folder}: no views to write")
+    if suffix not in CLOUD_SUFFIXES or transform_suffix not in TRANSFORM_SUFFIXES:
+        raise RawDataError(f"{folder}: unsupported view file types {suffix!r}, {transform_suffix!r}")
+    try:
+        for k, view in enumerate(views):
+            check_points(view.points, str(folder / f"view_{k}{suffix}"))
+            check_rigid(view.camera_to_base, str(folder / f"view_{k}.transform{transform_suffix}"))
+    except ValueError as e:
+        raise RawDataError(str(e)) from None
+    folder.mkdir(parents=True, exist_ok=True)
+    for k, view in enumerate(views):
+        write_points(folder / f"view_{k}{suffix}", view.points)
+        write_transform(folder / f"view_{k}.transform{transform_suffix}", view.camera_to_base)
+
+
+def write_datapoints_table(path: str | os.PathLike, rows: list[dict]) -> None:
+    """Write a datapoints table (columns id,motion,effector,level,role,material), atomically."""
+    df = pd.DataFrame(rows)
+    missing = [c for c in COLUMNS if c not in df.columns]
+    if missing:
+        raise RawDataError(f"{path}: rows lack column(s) {missing}")
+    with atomic_output(path) as tmp:
+        df[list(COLUMNS)].to_csv(tmp, index=False)
+
+
+__all__ = ["COLUMNS", "ROLES", "STATES", "EFFECTOR_KINDS", "RawDataError", "StateSource", "EffectorSpec",
+           "RawDatapoint", "RawDataset", "load_raw_dataset", "write_views", "write_datapoints_table"]

@@ -1,0 +1,135 @@
+"""Synthetic capture → fusion → meshing → filling on a known object standing on the table (SPEC §3)."""
+
+import numpy as np
+import open3d as o3d
+import pytest
+from scipy.spatial import cKDTree
+
+from dpsi.capture import capture
+from dpsi.reconstruction.filling import fill, lattice_spacing, particles_to_mesh, pcd_target, prt_target
+from dpsi.reconstruction.fusion import fuse
+from dpsi.reconstruction.meshing import MeshingError, is_watertight, mesh_volume, reconstruct_mesh
+
+CENTRE = (-0.52, 0.01)
+LO, HI = (-0.60, -0.07, -0.01), (-0.44, 0.09, 0.10)
+
+
+def dome(radius=0.035, wall=0.012, top=0.03, centre=CENTRE, n_around=48, n_up=12):
+    """Watertight lump standing on z = 0: a vertical wall of height ``wall`` topped by a half-ellipsoid
+    reaching ``top`` (m), built by revolving its profile about the vertical axis."""
+    angles = np.linspace(0, np.pi / 2, n_up + 1)[1:-1]
+    profile = [(radius, wall * k / 4) for k in range(5)]
+    profile += [(radius * np.cos(a), wall + (top - wall) * np.sin(a)) for a in angles]
+    phi = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
+    verts = [[centre[0] + r * np.cos(p), centre[1] + r * np.sin(p), z] for r, z in profile for p in phi]
+    verts += [[centre[0], centre[1], top], [centre[0], centre[1], 0.0]]
+    m, faces = len(profile), []
+    for i in range(m - 1):
+        for j in range(n_around):
+            a, b = i * n_around + j, i * n_around + (j + 1) % n_around
+            faces += [[a, b, b + n_around], [a, b + n_around, a + n_around]]
+    for j in range(n_around):
+        faces.append([(m - 1) * n_around + j, (m - 1) * n_around + (j + 1) % n_around, len(verts) - 2])
+        faces.append([(j + 1) % n_around, j, len(verts) - 1])
+    return o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts), o3d.utility.Vector3iVector(faces))
+
+
+def distance_to(mesh, points):
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    return scene.compute_distance(o3d.core.Tensor(np.asarray(points, np.float32))).numpy()
+
+
+@pytest.fixture(scope="module")
+def truth():
+    mesh = dome()
+    assert is_watertight(mesh)
+    return mesh
+
+
+@pytest.fixture(scope="module")
+def views(truth):
+    return capture(truth, seed=3)
+
+
+@pytest.fixture(scope="module")
+def fused(views):
+    return fuse(views, LO, HI)
+
+
+@pytest.fixture(scope="module")
+def mesh(fused):
+    return reconstruct_mesh(fused, name="dome")
+
+
+def test_capture_sees_no_bottom_and_is_deterministic(truth, views):
+    assert len(views) == 6
+    again = capture(truth, seed=3)
+    np.testing.assert_array_equal(views[2].points, again[2].points)
+    assert not np.array_equal(capture(truth, seed=4)[2].points, views[2].points)
+    for view in views:
+        assert (view.points[:, 2] > 0.1).all()  # camera frame: in front of the camera, ~0.3 m away
+        base = view.in_base()
+        near = distance_to(truth, base) < 0.006
+        assert near.sum() > 500  # it sees the object ...
+        assert (base[:, 2] > -0.01).all()  # ... and the table, never anything below it
+    # the believed extrinsics are off: the table seen by different views lies at different heights
+    table_heights = [np.median(v.in_base()[np.abs(v.in_base()[:, 2]) < 0.01, 2]) for v in views]
+    assert np.ptp(table_heights) > 0.0005
+
+
+def test_fused_cloud_is_close_to_the_true_surface(truth, views, fused):
+    visible = fuse(views, LO, HI, close=False)
+    surface = np.asarray(truth.sample_points_uniformly(20000).points)
+    upper = surface[surface[:, 2] > 0.004]  # what the cameras can see
+    to_truth = distance_to(truth, visible).mean()
+    to_cloud = cKDTree(visible).query(upper)[0].mean()
+    chamfer_mm = (to_truth + to_cloud) * 1e3
+    assert chamfer_mm < 2.0
+    # the closed cloud covers the bottom too
+    assert cKDTree(fused).query(surface)[0].mean() * 1e3 < 1.5
+    assert np.isclose(fused[:, 2].min(), 0.0, atol=1e-9)
+    # without registration the calibration error shows (views ~±3 mm apart)
+    unregistered = fuse(views, LO, HI, close=False, register=False)
+    assert distance_to(truth, unregistered).mean() > to_truth
+
+
+def test_mesh_is_watertight_with_the_right_volume(truth, mesh):
+    assert is_watertight(mesh)
+    assert mesh_volume(mesh) == pytest.approx(mesh_volume(truth), rel=0.10)
+    assert np.percentile(distance_to(truth, np.asarray(mesh.vertices)), 95) < 0.003
+
+
+@pytest.mark.parametrize("density", [4e7, 8e7])
+def test_filling_count_matches_density_times_volume(mesh, density):
+    particles = fill(mesh, density)
+    assert len(particles) == pytest.approx(density * mesh_volume(mesh), rel=0.03)
+    spacing = lattice_spacing(density)
+    assert particles[:, 2].min() == pytest.approx(spacing / 2, abs=1e-9)
+    d = cKDTree(particles).query(particles, k=2)[0][:, 1]
+    np.testing.assert_allclose(d, spacing, rtol=1e-6)
+
+
+def test_targets(mesh, fused):
+    sim = fill(mesh, 6e7)
+    target, density = prt_target(mesh, 6e7, max_particles=len(sim) - 200)
+    assert len(target) <= len(sim) - 200 and density < 6e7
+    assert len(fill(mesh, density / 0.95)) > len(sim) - 200  # stopped at the first density that fits
+    pcd = pcd_target(fused)
+    assert 0.05 * len(sim) < len(pcd) < 0.4 * len(sim)
+    assert cKDTree(fused).query(pcd)[0].max() < 0.005
+
+
+def test_particles_to_mesh_is_watertight_and_keeps_volume(truth):
+    spacing = lattice_spacing(6e7)
+    particles = fill(truth, 6e7)
+    wrapped = particles_to_mesh(particles, spacing)
+    assert is_watertight(wrapped)
+    assert mesh_volume(wrapped) == pytest.approx(len(particles) * spacing**3, rel=0.08)
+    assert mesh_volume(wrapped) == pytest.approx(mesh_volume(truth), rel=0.08)
+
+
+def test_meshing_failure_names_the_input():
+    line = np.column_stack([np.linspace(0, 0.05, 200), np.zeros(200), np.zeros(200)])
+    with pytest.raises(MeshingError, match="datapoint-7"):
+        reconstruct_mesh(line, name="datapoint-7")

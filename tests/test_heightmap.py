@@ -1,0 +1,75 @@
+import numpy as np
+import pytest
+
+from dpsi.heightmap import height_map, height_map_owners, heightmap_distance_mm
+
+CELL = 0.11 / 32  # m
+
+
+def cell_centre(i, j, centre=(0.0, 0.0)):
+    """Centre (x, y) in m of cell (i, j) of the default map."""
+    return (centre[0] - 0.055 + (i + 0.5) * CELL, centre[1] - 0.055 + (j + 0.5) * CELL)
+
+
+def test_cells_hold_highest_z_and_empty_cells_the_table_height():
+    centre = (0.3, -0.1)
+    points = np.array([
+        [*cell_centre(2, 5, centre), 0.010],
+        [*cell_centre(2, 5, centre), 0.030],
+        [*cell_centre(2, 5, centre), 0.020],
+        [*cell_centre(31, 0, centre), 0.005],
+    ])
+    hm = height_map(points, centre)
+    assert hm.shape == (32, 32)
+    assert hm[2, 5] == 0.030  # x indexes the first axis
+    assert hm[31, 0] == 0.005
+    assert np.count_nonzero(hm) == 2
+    assert height_map(points, centre, floor=-1.0)[0, 0] == -1.0
+
+
+def test_owners_point_at_the_highest_point():
+    points = np.array([[*cell_centre(7, 7), 0.02], [*cell_centre(7, 7), 0.04], [*cell_centre(8, 7), 0.01]])
+    owners = height_map_owners(points, (0.0, 0.0))
+    assert owners[7, 7] == 1 and owners[8, 7] == 2
+    assert (owners == -1).sum() == 32 * 32 - 2
+
+
+def test_points_outside_the_square_are_ignored_and_cells_are_half_open():
+    points = np.array([[0.056, 0.0, 0.05], [0.0, -0.0551, 0.05], [-0.055, -0.055, 0.02], [0.055, 0.0, 0.07]])
+    hm = height_map(points, (0.0, 0.0))
+    assert hm[0, 0] == 0.02  # the low corner belongs to the map
+    assert np.count_nonzero(hm) == 1  # the high edge does not
+
+
+def test_size_and_cells_change_the_grid():
+    hm = height_map(np.array([[0.9, 0.0, 0.01]]), (0.0, 0.0), size=2.0, cells=4)
+    assert hm.shape == (4, 4) and hm[3, 2] == 0.01
+
+
+def test_no_points_gives_the_floor():
+    assert np.all(height_map(np.zeros((0, 3)), (0.0, 0.0), floor=0.002) == 0.002)
+
+
+def test_distance_is_summed_in_mm():
+    a = np.zeros((32, 32))
+    b = np.full((32, 32), 0.001)
+    b[0, 0] = -0.002
+    assert heightmap_distance_mm(a, b) == pytest.approx(1023 + 2)
+    assert heightmap_distance_mm(b, b) == 0.0
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"points": np.zeros((3, 2))}, "points"),
+    ({"centre_xy": (0.0, 0.0, 0.0)}, "centre_xy"),
+    ({"size": 0.0}, "size"),
+    ({"cells": 2.5}, "cells"),
+])
+def test_bad_input_is_named(kwargs, message):
+    args = {"points": np.zeros((3, 3)), "centre_xy": (0.0, 0.0), **kwargs}
+    with pytest.raises(ValueError, match=message):
+        height_map(**args)
+
+
+def test_distance_shape_mismatch():
+    with pytest.raises(ValueError, match="shape"):
+        heightmap_distance_mm(np.zeros((32, 32)), np.zeros((16, 16)))
