@@ -9,10 +9,11 @@ One substep (state slot s → s + 1), each a kernel of its own:
 3. ``decompose`` – F_tr = U Σ Vᵀ (its derivative is :func:`svd.svd_backward`).
 4. ``return_mapping`` – von Mises return mapping in Hencky strain.
 5. ``elastic_deformation`` – the new F from the projected singular values.
-6. ``elastic_stress`` – the Kirchhoff stress of fixed-corotated elasticity.
+6. ``elastic_stress`` – the Kirchhoff stress of fixed-corotated elasticity, as APIC affine momentum.
 7. ``particle_to_grid`` – APIC/MLS transfer of mass and momentum (quadratic B-splines).
 8. ``grid_update`` – velocities, gravity, frictional contact with table and effector, walls.
-9. ``grid_to_particle`` – velocities and affine matrices back to particles, contact again, advect.
+9. ``grid_to_particle`` – velocities and affine matrices back to particles.
+10. ``particle_contact_and_advect`` – contact again at the particles, then advection.
 
 Gradients run backwards through all substeps of all steps. Memory: the particle state is kept at
 the start of every step (a checkpoint) and for every substep of the one step being differentiated;
@@ -63,7 +64,7 @@ class Simulator:
         scalar = lambda grad=False: ti.field(f64, shape=(), needs_grad=grad)  # noqa: E731
         self.E, self.nu, self.rho = scalar(True), scalar(True), scalar(True)
         self.yield_stress, self.mu_table, self.mu_effector = scalar(True), scalar(True), scalar(True)
-        self.shear, self.lam = scalar(True), scalar(True)
+        self.shear, self.lam, self.particle_mass = scalar(True), scalar(True), scalar(True)
         self.dt, self.particle_volume, self.table_z = scalar(), scalar(), scalar()
         self.n_particles = ti.field(ti.i32, shape=())
         self.origin = ti.Vector.field(3, f64, shape=())
@@ -88,7 +89,8 @@ class Simulator:
         self.sigma = ti.Vector.field(3, f64, shape=n, needs_grad=True)
         self.sigma_elastic = ti.Vector.field(3, f64, shape=n, needs_grad=True)
         self.V = ti.Matrix.field(3, 3, f64, shape=n, needs_grad=True)
-        self.tau = ti.Matrix.field(3, 3, f64, shape=n, needs_grad=True)
+        self.affine = ti.Matrix.field(3, 3, f64, shape=n, needs_grad=True)
+        self.v_grid = ti.Vector.field(3, f64, shape=n, needs_grad=True)
         self.p_phi = ti.field(f64, shape=n)
         self.p_normal = ti.Vector.field(3, f64, shape=n)
         self.p_v_effector = ti.Vector.field(3, f64, shape=n)
@@ -109,9 +111,10 @@ class Simulator:
     # ------------------------------------------------------------------ parameters
     @ti.kernel
     def material(self):
-        """Lamé parameters from Young's modulus and Poisson's ratio (SPEC §4, fixed)."""
+        """Lamé parameters from Young's modulus and Poisson's ratio (SPEC §4, fixed), particle mass."""
         self.shear[None] = self.E[None] / (2.0 * (1.0 + self.nu[None]))
         self.lam[None] = self.E[None] * self.nu[None] / ((1.0 + self.nu[None]) * (1.0 - 2.0 * self.nu[None]))
+        self.particle_mass[None] = self.rho[None] * self.particle_volume[None]
 
     # ------------------------------------------------------------------ effector pose
     @ti.func
@@ -154,6 +157,8 @@ class Simulator:
         ti.loop_config(serialize=self.serial)
         for p in range(self.n_particles[None]):
             self.p_phi[p], self.p_normal[p], self.p_v_effector[p] = self.effector_contact(self.x[s, p], step, fraction)
+            self.v_grid[p] = ti.Vector.zero(ti.f64, 3)
+            self.C[s + 1, p] = ti.Matrix.zero(ti.f64, 3, 3)
 
     @ti.kernel
     def trial_deformation(self, s: ti.i32):
@@ -204,15 +209,18 @@ class Simulator:
             self.F[s + 1, p] = self.rebuild(self.U[p], self.sigma_elastic[p], self.V[p])
 
     @ti.kernel
-    def elastic_stress(self):
-        """Fixed-corotated Kirchhoff stress τ = 2μ(F − R)Fᵀ + λ(J − 1)J I, which in the principal frame
-        is U diag(2μ(σ − 1)σ + λ(J − 1)J) Uᵀ."""
+    def elastic_stress(self, s: ti.i32):
+        """APIC affine momentum m C − (4Δt/Δx²) V_p τ, with the fixed-corotated Kirchhoff stress
+        τ = 2μ(F − R)Fᵀ + λ(J − 1)J I, which in the principal frame is
+        U diag(2μ(σ − 1)σ + λ(J − 1)J) Uᵀ."""
         ti.loop_config(serialize=self.serial)
         for p in range(self.n_particles[None]):
             sig = self.sigma_elastic[p]
             J = sig[0] * sig[1] * sig[2]
             principal = 2.0 * self.shear[None] * (sig - 1.0) * sig + self.lam[None] * (J - 1.0) * J
-            self.tau[p] = self.rebuild(self.U[p], principal, self.U[p])
+            tau = self.rebuild(self.U[p], principal, self.U[p])
+            scale = 4.0 * self.dt[None] * self.inv_dx * self.inv_dx * self.particle_volume[None]
+            self.affine[p] = self.particle_mass[None] * self.C[s, p] - scale * tau
 
     @ti.func
     def stencil(self, x):
@@ -233,17 +241,16 @@ class Simulator:
 
     @ti.kernel
     def particle_to_grid(self, s: ti.i32):
+        """Scatter mass and momentum. The stencil is recomputed in the loop body so that reverse mode
+        needs no per-iteration stack."""
         ti.loop_config(serialize=self.serial)
         for p in range(self.n_particles[None]):
-            base, fx = self.stencil(self.x[s, p])
-            vol = self.particle_volume[None]
-            mass = self.rho[None] * vol
-            affine = mass * self.C[s, p] - (4.0 * self.dt[None] * self.inv_dx * self.inv_dx * vol) * self.tau[p]
-            momentum = mass * self.v[s, p]
             for i, j, k in ti.ndrange(3, 3, 3):
                 offset = ti.Vector([i, j, k])
+                base, fx = self.stencil(self.x[s, p])
                 weight, dpos = self.weight(fx, offset)
-                self.grid_p[base + offset] += weight * (momentum + affine @ dpos)
+                mass = self.particle_mass[None]
+                self.grid_p[base + offset] += weight * (mass * self.v[s, p] + self.affine[p] @ dpos)
                 self.grid_m[base + offset] += weight * mass
 
     @ti.func
@@ -272,27 +279,33 @@ class Simulator:
 
     @ti.kernel
     def grid_to_particle(self, s: ti.i32):
+        """Gather velocity and the affine matrix C = (4/Δx²) Σ w v (x_i − x_p)ᵀ from the grid
+        (into fields cleared by ``contact_geometry``)."""
+        ti.loop_config(serialize=self.serial)
+        for p in range(self.n_particles[None]):
+            for i, j, k in ti.ndrange(3, 3, 3):
+                offset = ti.Vector([i, j, k])
+                base, fx = self.stencil(self.x[s, p])
+                weight, dpos = self.weight(fx, offset)
+                g_v = self.grid_v[base + offset]
+                self.v_grid[p] += weight * g_v
+                self.C[s + 1, p] += (4.0 * self.inv_dx * self.inv_dx * weight) * g_v.outer_product(dpos)
+
+    @ti.kernel
+    def particle_contact_and_advect(self, s: ti.i32):
+        """Collide particles with the table and the effector again, then move them."""
         ti.loop_config(serialize=self.serial)
         for p in range(self.n_particles[None]):
             up = ti.Vector([0.0, 0.0, 1.0])
             still = ti.Vector.zero(ti.f64, 3)
-            x = self.x[s, p]
-            base, fx = self.stencil(x)
-            new_v = ti.Vector.zero(ti.f64, 3)
-            new_C = ti.Matrix.zero(ti.f64, 3, 3)
-            for i, j, k in ti.ndrange(3, 3, 3):
-                offset = ti.Vector([i, j, k])
-                weight, dpos = self.weight(fx, offset)
-                g_v = self.grid_v[base + offset]
-                new_v += weight * g_v
-                new_C += (4.0 * self.inv_dx * self.inv_dx * weight) * g_v.outer_product(dpos)
-            new_v = ti.select(x[2] <= self.table_z[None], frictional_contact(new_v, still, up, self.mu_table[None]), new_v)
-            new_v = ti.select(self.p_phi[p] <= 0.0,
-                              frictional_contact(new_v, self.p_v_effector[p], self.p_normal[p], self.mu_effector[None]),
-                              new_v)
-            self.v[s + 1, p] = new_v
-            self.C[s + 1, p] = new_C
-            self.x[s + 1, p] = x + self.dt[None] * new_v
+            x, v = self.x[s, p], self.v_grid[p]
+            after_table = ti.select(x[2] <= self.table_z[None], frictional_contact(v, still, up, self.mu_table[None]), v)
+            after_effector = ti.select(
+                self.p_phi[p] <= 0.0,
+                frictional_contact(after_table, self.p_v_effector[p], self.p_normal[p], self.mu_effector[None]),
+                after_table)
+            self.v[s + 1, p] = after_effector
+            self.x[s + 1, p] = x + self.dt[None] * after_effector
 
     # ------------------------------------------------------------------ bookkeeping kernels
     @ti.kernel
@@ -360,7 +373,8 @@ class Simulator:
             self.F_trial.grad[p] = ti.Matrix.zero(ti.f64, 3, 3)
             self.U.grad[p] = ti.Matrix.zero(ti.f64, 3, 3)
             self.V.grad[p] = ti.Matrix.zero(ti.f64, 3, 3)
-            self.tau.grad[p] = ti.Matrix.zero(ti.f64, 3, 3)
+            self.affine.grad[p] = ti.Matrix.zero(ti.f64, 3, 3)
+            self.v_grid.grad[p] = ti.Vector.zero(ti.f64, 3)
             self.sigma.grad[p] = ti.Vector.zero(ti.f64, 3)
             self.sigma_elastic.grad[p] = ti.Vector.zero(ti.f64, 3)
         ti.loop_config(serialize=self.serial)
@@ -434,24 +448,25 @@ class Simulator:
         self.dt[None] = self.config.step_dt / self.substeps
         self.material()
 
-    def _substep(self, step: int, s: int, with_g2p: bool = True) -> None:
+    def _substep(self, step: int, s: int) -> None:
         self.contact_geometry(s, step, (s + 1) / self.substeps)
         self.trial_deformation(s)
         self.decompose()
         self.return_mapping()
         self.elastic_deformation(s)
-        self.elastic_stress()
+        self.elastic_stress(s)
         self.particle_to_grid(s)
         self.grid_update()
-        if with_g2p:
-            self.grid_to_particle(s)
+        self.grid_to_particle(s)
+        self.particle_contact_and_advect(s)
 
     def _substep_backward(self, s: int) -> None:
         self.clear_substep_gradients()
+        self.particle_contact_and_advect.grad(s)
         self.grid_to_particle.grad(s)
         self.grid_update.grad()
         self.particle_to_grid.grad(s)
-        self.elastic_stress.grad()
+        self.elastic_stress.grad(s)
         self.elastic_deformation.grad(s)
         self.return_mapping.grad()
         self.decompose_backward()
@@ -489,7 +504,7 @@ class Simulator:
         grad_positions = np.ascontiguousarray(grad_positions, dtype=np.float64)
         if grad_positions.shape != checkpoints.shape[1:2] + (3,):
             raise ValueError(f"gradient has shape {grad_positions.shape}, expected {(checkpoints.shape[1], 3)}")
-        for name in (*NAMES, "shear", "lam"):
+        for name in (*NAMES, "shear", "lam", "particle_mass"):
             getattr(self, name).grad[None] = 0.0
         self.seed_gradient(grad_positions)
         for step in reversed(range(len(checkpoints) - 1)):
@@ -498,7 +513,7 @@ class Simulator:
             for s in range(self.substeps):
                 self._substep(step, s)
             for s in reversed(range(self.substeps)):
-                self._substep(step, s, with_g2p=False)
+                self._substep(step, s)  # restores the substep's grid and temporaries
                 self._substep_backward(s)
         self.material.grad()
         grads = {name: float(getattr(self, name).grad[None]) for name in NAMES}
