@@ -9,29 +9,10 @@ from dpsi.capture import capture
 from dpsi.reconstruction.filling import fill, lattice_spacing, particles_to_mesh, pcd_target, prt_target
 from dpsi.reconstruction.fusion import fuse
 from dpsi.reconstruction.meshing import MeshingError, is_watertight, mesh_volume, reconstruct_mesh
+from dpsi.shapes import lump
 
 CENTRE = (-0.52, 0.01)
 LO, HI = (-0.60, -0.07, -0.01), (-0.44, 0.09, 0.10)
-
-
-def dome(radius=0.035, wall=0.012, top=0.03, centre=CENTRE, n_around=48, n_up=12):
-    """Watertight lump standing on z = 0: a vertical wall of height ``wall`` topped by a half-ellipsoid
-    reaching ``top`` (m), built by revolving its profile about the vertical axis."""
-    angles = np.linspace(0, np.pi / 2, n_up + 1)[1:-1]
-    profile = [(radius, wall * k / 4) for k in range(5)]
-    profile += [(radius * np.cos(a), wall + (top - wall) * np.sin(a)) for a in angles]
-    phi = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
-    verts = [[centre[0] + r * np.cos(p), centre[1] + r * np.sin(p), z] for r, z in profile for p in phi]
-    verts += [[centre[0], centre[1], top], [centre[0], centre[1], 0.0]]
-    m, faces = len(profile), []
-    for i in range(m - 1):
-        for j in range(n_around):
-            a, b = i * n_around + j, i * n_around + (j + 1) % n_around
-            faces += [[a, b, b + n_around], [a, b + n_around, a + n_around]]
-    for j in range(n_around):
-        faces.append([(m - 1) * n_around + j, (m - 1) * n_around + (j + 1) % n_around, len(verts) - 2])
-        faces.append([(j + 1) % n_around, j, len(verts) - 1])
-    return o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts), o3d.utility.Vector3iVector(faces))
 
 
 def distance_to(mesh, points):
@@ -42,7 +23,7 @@ def distance_to(mesh, points):
 
 @pytest.fixture(scope="module")
 def truth():
-    mesh = dome()
+    mesh = lump((0.035, 0.035), wall=0.012, top=0.03, centre=CENTRE)
     assert is_watertight(mesh)
     return mesh
 

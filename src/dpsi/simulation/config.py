@@ -34,9 +34,9 @@ class SimulatorConfig:
     dx: float = 0.006
     width: float = 0.21
     height: float = 0.10
-    cfl: float = 0.5
+    cfl: float = 0.7
     min_substeps: int = 8
-    max_particles: int = 8000
+    max_particles: int = 5000
     max_steps: int = 700
     step_dt: float = 0.01
     arch: str = "cpu"

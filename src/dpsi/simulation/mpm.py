@@ -1,19 +1,22 @@
 """Differentiable 3D MLS-MPM (Hu et al. 2018) of an elastoplastic object on a table, pressed by a
 kinematic rigid effector (SPEC §4).
 
-One substep (state slot s → s + 1), each a kernel of its own:
+One substep (state slot s → s + 1):
 
 1. ``contact_geometry`` – clear the grid; effector distance, normal and velocity at the nodes and
    particles (geometry only: not differentiated).
-2. ``trial_deformation`` – F_tr = (I + Δt C) F.
-3. ``decompose`` – F_tr = U Σ Vᵀ (its derivative is :func:`svd.svd_backward`).
-4. ``return_mapping`` – von Mises return mapping in Hencky strain.
-5. ``elastic_deformation`` – the new F from the projected singular values.
-6. ``elastic_stress`` – the Kirchhoff stress of fixed-corotated elasticity, as APIC affine momentum.
-7. ``particle_to_grid`` – APIC/MLS transfer of mass and momentum (quadratic B-splines).
-8. ``grid_update`` – velocities, gravity, frictional contact with table and effector, walls.
-9. ``grid_to_particle`` – velocities and affine matrices back to particles.
-10. ``particle_contact_and_advect`` – contact again at the particles, then advection.
+2. ``constitutive`` – trial deformation F_tr = (I + Δt C) F, its SVD, von Mises return mapping in
+   Hencky strain, the new F, and the fixed-corotated Kirchhoff stress as APIC affine momentum.
+3. ``particle_to_grid`` – APIC/MLS transfer of mass and momentum (quadratic B-splines).
+4. ``grid_update`` – velocities, gravity, frictional contact with table and effector, walls.
+5. ``grid_to_particle`` – velocities and affine matrices back to particles.
+6. ``particle_contact_and_advect`` – contact again at the particles, then advection.
+
+Reverse mode runs through small kernels, one per physical operation (``trial_deformation``,
+``return_mapping``, ``elastic_deformation``, ``elastic_stress``, ``grid_update``,
+``particle_contact_and_advect``), because Taichi's LLVM back end compiles a large reverse-mode kernel
+very slowly; the SVD and the two transfers have hand-written adjoints (``decompose_backward``,
+``particle_to_grid_adjoint``, ``grid_to_particle_adjoint``).
 
 Gradients run backwards through all substeps of all steps. Memory: the particle state is kept at
 the start of every step (a checkpoint) and for every substep of the one step being differentiated;
@@ -36,6 +39,10 @@ GRAVITY = -9.81
 
 WALL_CELLS = 3
 """Nodes this close to the box's faces stop outward motion (the box walls)."""
+
+REGION_MARGIN = 5
+"""Cells around the particles' bounding box that a step's grid work covers: the 3-node stencil reaches
+1.5 cells out, leaving 3.5 cells (≈ 2 cm) for motion within one 0.01 s step."""
 
 STATE_WIDTH = 24
 """Floats per particle in a checkpoint: x (3), v (3), C (9), F (9)."""
@@ -68,6 +75,8 @@ class Simulator:
         self.dt, self.particle_volume, self.table_z = scalar(), scalar(), scalar()
         self.n_particles = ti.field(ti.i32, shape=())
         self.origin = ti.Vector.field(3, f64, shape=())
+        self.region_lo = ti.Vector.field(3, ti.i32, shape=())
+        self.region_hi = ti.Vector.field(3, ti.i32, shape=())
 
         self.effector_kind = ti.field(ti.i32, shape=())
         self.effector_size = ti.Vector.field(3, f64, shape=())
@@ -85,10 +94,10 @@ class Simulator:
         self.F = ti.Matrix.field(3, 3, f64, shape=slots, needs_grad=True)
 
         self.F_trial = ti.Matrix.field(3, 3, f64, shape=n, needs_grad=True)
-        self.U = ti.Matrix.field(3, 3, f64, shape=n, needs_grad=True)
-        self.sigma = ti.Vector.field(3, f64, shape=n, needs_grad=True)
+        self.U = ti.Matrix.field(3, 3, f64, shape=slots, needs_grad=True)
+        self.sigma = ti.Vector.field(3, f64, shape=slots, needs_grad=True)
         self.sigma_elastic = ti.Vector.field(3, f64, shape=n, needs_grad=True)
-        self.V = ti.Matrix.field(3, 3, f64, shape=n, needs_grad=True)
+        self.V = ti.Matrix.field(3, 3, f64, shape=slots, needs_grad=True)
         self.affine = ti.Matrix.field(3, 3, f64, shape=n, needs_grad=True)
         self.v_grid = ti.Vector.field(3, f64, shape=n, needs_grad=True)
         self.p_phi = ti.field(f64, shape=n)
@@ -144,54 +153,21 @@ class Simulator:
                 vel = lin + ang * ti.Vector([-rel[1], rel[0], 0.0])
         return phi, normal, vel
 
-    # ------------------------------------------------------------------ substep kernels
-    @ti.kernel
-    def contact_geometry(self, s: ti.i32, step: ti.i32, fraction: ti.f64):
-        """Clear the grid and tabulate effector contact at nodes and particles (not differentiated)."""
-        ti.loop_config(serialize=self.serial)
-        for I in ti.grouped(ti.ndrange(*self.grid_shape)):
-            self.grid_m[I] = 0.0
-            self.grid_p[I] = ti.Vector.zero(ti.f64, 3)
-            node = self.origin[None] + I.cast(ti.f64) * self.dx
-            self.g_phi[I], self.g_normal[I], self.g_v_effector[I] = self.effector_contact(node, step, fraction)
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            self.p_phi[p], self.p_normal[p], self.p_v_effector[p] = self.effector_contact(self.x[s, p], step, fraction)
-            self.v_grid[p] = ti.Vector.zero(ti.f64, 3)
-            self.C[s + 1, p] = ti.Matrix.zero(ti.f64, 3, 3)
+    # ------------------------------------------------------------------ substep: per-particle physics
+    # Each step of the constitutive update is a ti.func. The forward pass runs them fused in one kernel
+    # (fast); reverse mode differentiates them one small kernel at a time (fast to compile).
+    @ti.func
+    def trial(self, s, p):
+        return (ti.Matrix.identity(ti.f64, 3) + self.dt[None] * self.C[s, p]) @ self.F[s, p]
 
-    @ti.kernel
-    def trial_deformation(self, s: ti.i32):
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            self.F_trial[p] = (ti.Matrix.identity(ti.f64, 3) + self.dt[None] * self.C[s, p]) @ self.F[s, p]
-
-    @ti.kernel
-    def decompose(self):
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            u, sig, v = ti.svd(self.F_trial[p], ti.f64)
-            self.U[p], self.V[p] = u, v
-            self.sigma[p] = ti.Vector([sig[0, 0], sig[1, 1], sig[2, 2]])
-
-    @ti.kernel
-    def decompose_backward(self):
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            self.F_trial.grad[p] += svd_backward(self.U[p], self.sigma[p], self.V[p],
-                                                 self.U.grad[p], self.sigma.grad[p], self.V.grad[p])
-
-    @ti.kernel
-    def return_mapping(self):
-        """Project the trial Hencky strain onto the von Mises yield surface: singular values after
-        plastic flow."""
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            eps = ti.log(ti.max(self.sigma[p], 1e-8))
-            eps_dev = eps - eps.sum() / 3.0
-            dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + 1e-30)
-            plastic = ti.max(dev_norm - self.yield_stress[None] / (2.0 * self.shear[None]), 0.0)
-            self.sigma_elastic[p] = ti.exp(eps - plastic / dev_norm * eps_dev)
+    @ti.func
+    def plastic_flow(self, sigma):
+        """Singular values after projecting the trial Hencky strain onto the von Mises surface."""
+        eps = ti.log(ti.max(sigma, 1e-8))
+        eps_dev = eps - eps.sum() / 3.0
+        dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + 1e-30)
+        plastic = ti.max(dev_norm - self.yield_stress[None] / (2.0 * self.shear[None]), 0.0)
+        return ti.exp(eps - plastic / dev_norm * eps_dev)
 
     @ti.func
     def rebuild(self, u, sig, v):
@@ -201,57 +177,153 @@ class Simulator:
             out += sig[a] * ti.Vector([u[0, a], u[1, a], u[2, a]]).outer_product(ti.Vector([v[0, a], v[1, a], v[2, a]]))
         return out
 
+    @ti.func
+    def affine_momentum(self, s, p, u, sig):
+        """APIC affine momentum m C − (4Δt/Δx²) V_p τ with the fixed-corotated Kirchhoff stress
+        τ = 2μ(F − R)Fᵀ + λ(J − 1)J I = U diag(2μ(σ − 1)σ + λ(J − 1)J) Uᵀ."""
+        J = sig[0] * sig[1] * sig[2]
+        principal = 2.0 * self.shear[None] * (sig - 1.0) * sig + self.lam[None] * (J - 1.0) * J
+        tau = self.rebuild(u, principal, u)
+        scale = 4.0 * self.dt[None] * self.inv_dx * self.inv_dx * self.particle_volume[None]
+        return self.particle_mass[None] * self.C[s, p] - scale * tau
+
     @ti.kernel
-    def elastic_deformation(self, s: ti.i32):
-        """Deformation gradient after plastic flow, F = U Σ Vᵀ."""
+    def constitutive(self, s: ti.i32):
+        """Forward pass of the whole constitutive update: F_tr, its SVD (kept per substep for the
+        backward pass), plastic flow, the new F and the affine momentum."""
         ti.loop_config(serialize=self.serial)
         for p in range(self.n_particles[None]):
-            self.F[s + 1, p] = self.rebuild(self.U[p], self.sigma_elastic[p], self.V[p])
+            u, sig, v = ti.svd(self.trial(s, p), ti.f64)
+            sigma = ti.Vector([sig[0, 0], sig[1, 1], sig[2, 2]])
+            self.U[s, p], self.V[s, p], self.sigma[s, p] = u, v, sigma
+            elastic = self.plastic_flow(sigma)
+            self.sigma_elastic[p] = elastic
+            self.F[s + 1, p] = self.rebuild(u, elastic, v)
+            self.affine[p] = self.affine_momentum(s, p, u, elastic)
+
+    @ti.kernel
+    def trial_deformation(self, s: ti.i32):
+        ti.loop_config(serialize=self.serial)
+        for p in range(self.n_particles[None]):
+            self.F_trial[p] = self.trial(s, p)
+
+    @ti.kernel
+    def decompose_backward(self, s: ti.i32):
+        ti.loop_config(serialize=self.serial)
+        for p in range(self.n_particles[None]):
+            self.F_trial.grad[p] += svd_backward(self.U[s, p], self.sigma[s, p], self.V[s, p],
+                                                 self.U.grad[s, p], self.sigma.grad[s, p], self.V.grad[s, p])
+
+    @ti.kernel
+    def return_mapping(self, s: ti.i32):
+        ti.loop_config(serialize=self.serial)
+        for p in range(self.n_particles[None]):
+            self.sigma_elastic[p] = self.plastic_flow(self.sigma[s, p])
+
+    @ti.kernel
+    def elastic_deformation(self, s: ti.i32):
+        ti.loop_config(serialize=self.serial)
+        for p in range(self.n_particles[None]):
+            self.F[s + 1, p] = self.rebuild(self.U[s, p], self.sigma_elastic[p], self.V[s, p])
 
     @ti.kernel
     def elastic_stress(self, s: ti.i32):
-        """APIC affine momentum m C − (4Δt/Δx²) V_p τ, with the fixed-corotated Kirchhoff stress
-        τ = 2μ(F − R)Fᵀ + λ(J − 1)J I, which in the principal frame is
-        U diag(2μ(σ − 1)σ + λ(J − 1)J) Uᵀ."""
         ti.loop_config(serialize=self.serial)
         for p in range(self.n_particles[None]):
-            sig = self.sigma_elastic[p]
-            J = sig[0] * sig[1] * sig[2]
-            principal = 2.0 * self.shear[None] * (sig - 1.0) * sig + self.lam[None] * (J - 1.0) * J
-            tau = self.rebuild(self.U[p], principal, self.U[p])
-            scale = 4.0 * self.dt[None] * self.inv_dx * self.inv_dx * self.particle_volume[None]
-            self.affine[p] = self.particle_mass[None] * self.C[s, p] - scale * tau
+            self.affine[p] = self.affine_momentum(s, p, self.U[s, p], self.sigma_elastic[p])
 
+    # ------------------------------------------------------------------ substep: transfers
+    # Particle-grid transfers have hand-written adjoints: Taichi's reverse mode of the unrolled
+    # 27-node loop takes minutes to compile, and that of a rolled loop runs 13 times slower.
     @ti.func
-    def stencil(self, x):
-        """Lower corner node index and fractional offset (in cells) of a position's 3×3×3 stencil."""
+    def stencil_node(self, x, offset):
+        """Grid node at ``offset`` (0..2 per axis) of the 3×3×3 stencil of position ``x``: its index,
+        quadratic B-spline weight, offset from the particle (m), and the weight's gradient with respect
+        to x (1/m)."""
         X = (x - self.origin[None]) * self.inv_dx
-        base = ti.cast(X - 0.5, ti.i32)
-        return base, X - base.cast(ti.f64)
-
-    @ti.func
-    def weight(self, fx, offset):
-        """Quadratic B-spline weight of the node at ``offset`` (0, 1, 2 per axis) and its offset
-        from the particle (m)."""
-        d = offset.cast(ti.f64) - fx
+        base = ti.min(ti.max(ti.cast(X - 0.5, ti.i32), 0), ti.Vector(self.grid_shape) - 3)
+        d = offset.cast(ti.f64) - (X - base.cast(ti.f64))
         w = ti.Vector([0.0, 0.0, 0.0])
+        dw = ti.Vector([0.0, 0.0, 0.0])  # d w_a / d d_a
         for a in ti.static(range(3)):
-            w[a] = ti.select(offset[a] == 1, 0.75 - d[a] ** 2, 0.5 * (1.5 - ti.abs(d[a])) ** 2)
-        return w[0] * w[1] * w[2], d * self.dx
+            middle = offset[a] == 1
+            w[a] = ti.select(middle, 0.75 - d[a] ** 2, 0.5 * (1.5 - ti.abs(d[a])) ** 2)
+            dw[a] = ti.select(middle, -2.0 * d[a], -(1.5 - ti.abs(d[a])) * ti.math.sign(d[a]))
+        grad_w = -self.inv_dx * ti.Vector([dw[0] * w[1] * w[2], w[0] * dw[1] * w[2], w[0] * w[1] * dw[2]])
+        return base + offset, w[0] * w[1] * w[2], d * self.dx, grad_w
 
     @ti.kernel
     def particle_to_grid(self, s: ti.i32):
-        """Scatter mass and momentum. The stencil is recomputed in the loop body so that reverse mode
-        needs no per-iteration stack."""
+        """grid momentum += w (m v + A (x_i − x_p)), grid mass += w m, A the affine momentum."""
         ti.loop_config(serialize=self.serial)
         for p in range(self.n_particles[None]):
-            for i, j, k in ti.ndrange(3, 3, 3):
-                offset = ti.Vector([i, j, k])
-                base, fx = self.stencil(self.x[s, p])
-                weight, dpos = self.weight(fx, offset)
-                mass = self.particle_mass[None]
-                self.grid_p[base + offset] += weight * (mass * self.v[s, p] + self.affine[p] @ dpos)
-                self.grid_m[base + offset] += weight * mass
+            mass, v, A = self.particle_mass[None], self.v[s, p], self.affine[p]
+            for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+                node, w, dpos, _ = self.stencil_node(self.x[s, p], ti.Vector([i, j, k]))
+                self.grid_p[node] += w * (mass * v + A @ dpos)
+                self.grid_m[node] += w * mass
+
+    @ti.kernel
+    def particle_to_grid_adjoint(self, s: ti.i32):
+        ti.loop_config(serialize=self.serial)
+        for p in range(self.n_particles[None]):
+            mass, v, A = self.particle_mass[None], self.v[s, p], self.affine[p]
+            x_bar, v_bar, m_bar = ti.Vector.zero(ti.f64, 3), ti.Vector.zero(ti.f64, 3), 0.0
+            A_bar = ti.Matrix.zero(ti.f64, 3, 3)
+            for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+                node, w, dpos, grad_w = self.stencil_node(self.x[s, p], ti.Vector([i, j, k]))
+                p_bar, m_node_bar = self.grid_p.grad[node], self.grid_m.grad[node]
+                v_bar += w * mass * p_bar
+                A_bar += w * p_bar.outer_product(dpos)
+                m_bar += w * (v.dot(p_bar) + m_node_bar)
+                x_bar += (p_bar.dot(mass * v + A @ dpos) + m_node_bar * mass) * grad_w - w * (A.transpose() @ p_bar)
+            self.x.grad[s, p] += x_bar
+            self.v.grad[s, p] += v_bar
+            self.affine.grad[p] += A_bar
+            self.particle_mass.grad[None] += m_bar
+
+    @ti.kernel
+    def grid_to_particle(self, s: ti.i32):
+        """v = Σ w v_i and C = (4/Δx²) Σ w v_i (x_i − x_p)ᵀ."""
+        ti.loop_config(serialize=self.serial)
+        for p in range(self.n_particles[None]):
+            v = ti.Vector.zero(ti.f64, 3)
+            C = ti.Matrix.zero(ti.f64, 3, 3)
+            for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+                node, w, dpos, _ = self.stencil_node(self.x[s, p], ti.Vector([i, j, k]))
+                v += w * self.grid_v[node]
+                C += (4.0 * self.inv_dx * self.inv_dx * w) * self.grid_v[node].outer_product(dpos)
+            self.v_grid[p] = v
+            self.C[s + 1, p] = C
+
+    @ti.kernel
+    def grid_to_particle_adjoint(self, s: ti.i32):
+        ti.loop_config(serialize=self.serial)
+        for p in range(self.n_particles[None]):
+            v_bar, C_bar = self.v_grid.grad[p], self.C.grad[s + 1, p]
+            x_bar = ti.Vector.zero(ti.f64, 3)
+            for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+                node, w, dpos, grad_w = self.stencil_node(self.x[s, p], ti.Vector([i, j, k]))
+                g_v = self.grid_v[node]
+                scale = 4.0 * self.inv_dx * self.inv_dx
+                self.grid_v.grad[node] += w * v_bar + scale * w * (C_bar @ dpos)
+                x_bar += (g_v.dot(v_bar) + scale * g_v.dot(C_bar @ dpos)) * grad_w - scale * w * (C_bar.transpose() @ g_v)
+            self.x.grad[s, p] += x_bar
+
+    # ------------------------------------------------------------------ substep: grid and contact
+    @ti.kernel
+    def contact_geometry(self, s: ti.i32, step: ti.i32, fraction: ti.f64):
+        """Clear the grid and tabulate effector contact at nodes and particles (not differentiated)."""
+        ti.loop_config(serialize=self.serial)
+        for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
+            I = ti.Vector([i, j, k])
+            self.grid_m[I] = 0.0
+            self.grid_p[I] = ti.Vector.zero(ti.f64, 3)
+            node = self.origin[None] + I.cast(ti.f64) * self.dx
+            self.g_phi[I], self.g_normal[I], self.g_v_effector[I] = self.effector_contact(node, step, fraction)
+        ti.loop_config(serialize=self.serial)
+        for p in range(self.n_particles[None]):
+            self.p_phi[p], self.p_normal[p], self.p_v_effector[p] = self.effector_contact(self.x[s, p], step, fraction)
 
     @ti.func
     def wall(self, I, v):
@@ -264,7 +336,8 @@ class Simulator:
     @ti.kernel
     def grid_update(self):
         ti.loop_config(serialize=self.serial)
-        for I in ti.grouped(ti.ndrange(*self.grid_shape)):
+        for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
+            I = ti.Vector([i, j, k])
             if self.grid_m[I] > 0.0:
                 up = ti.Vector([0.0, 0.0, 1.0])
                 still = ti.Vector.zero(ti.f64, 3)
@@ -276,20 +349,6 @@ class Simulator:
                     frictional_contact(after_table, self.g_v_effector[I], self.g_normal[I], self.mu_effector[None]),
                     after_table)
                 self.grid_v[I] = self.wall(I, after_effector)
-
-    @ti.kernel
-    def grid_to_particle(self, s: ti.i32):
-        """Gather velocity and the affine matrix C = (4/Δx²) Σ w v (x_i − x_p)ᵀ from the grid
-        (into fields cleared by ``contact_geometry``)."""
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            for i, j, k in ti.ndrange(3, 3, 3):
-                offset = ti.Vector([i, j, k])
-                base, fx = self.stencil(self.x[s, p])
-                weight, dpos = self.weight(fx, offset)
-                g_v = self.grid_v[base + offset]
-                self.v_grid[p] += weight * g_v
-                self.C[s + 1, p] += (4.0 * self.inv_dx * self.inv_dx * weight) * g_v.outer_product(dpos)
 
     @ti.kernel
     def particle_contact_and_advect(self, s: ti.i32):
@@ -367,21 +426,30 @@ class Simulator:
                 self.F.grad[s, p] = ti.Matrix.zero(ti.f64, 3, 3)
 
     @ti.kernel
-    def clear_substep_gradients(self):
+    def clear_substep_gradients(self, s: ti.i32):
         ti.loop_config(serialize=self.serial)
         for p in range(self.n_particles[None]):
             self.F_trial.grad[p] = ti.Matrix.zero(ti.f64, 3, 3)
-            self.U.grad[p] = ti.Matrix.zero(ti.f64, 3, 3)
-            self.V.grad[p] = ti.Matrix.zero(ti.f64, 3, 3)
+            self.U.grad[s, p] = ti.Matrix.zero(ti.f64, 3, 3)
+            self.V.grad[s, p] = ti.Matrix.zero(ti.f64, 3, 3)
+            self.sigma.grad[s, p] = ti.Vector.zero(ti.f64, 3)
             self.affine.grad[p] = ti.Matrix.zero(ti.f64, 3, 3)
             self.v_grid.grad[p] = ti.Vector.zero(ti.f64, 3)
-            self.sigma.grad[p] = ti.Vector.zero(ti.f64, 3)
             self.sigma_elastic.grad[p] = ti.Vector.zero(ti.f64, 3)
         ti.loop_config(serialize=self.serial)
-        for I in ti.grouped(ti.ndrange(*self.grid_shape)):
+        for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
+            I = ti.Vector([i, j, k])
             self.grid_m.grad[I] = 0.0
             self.grid_p.grad[I] = ti.Vector.zero(ti.f64, 3)
             self.grid_v.grad[I] = ti.Vector.zero(ti.f64, 3)
+
+    @ti.kernel
+    def grid_mass(self) -> ti.f64:
+        """Total mass on the grid after the last substep (kg)."""
+        total = 0.0
+        for I in ti.grouped(self.grid_m):
+            total += self.grid_m[I]
+        return total
 
     @ti.kernel
     def effector_distance(self, points: ti.types.ndarray(), out: ti.types.ndarray()):
@@ -448,28 +516,42 @@ class Simulator:
         self.dt[None] = self.config.step_dt / self.substeps
         self.material()
 
+    def _set_active_region(self, state: np.ndarray) -> None:
+        """Limit grid work during a step to the particles' bounding box plus REGION_MARGIN cells."""
+        cells = (state[:, :3] - self.origin.to_numpy()) * self.inv_dx
+        lo = np.floor(cells.min(axis=0)).astype(int) - REGION_MARGIN
+        hi = np.ceil(cells.max(axis=0)).astype(int) + REGION_MARGIN
+        self.region_lo[None] = np.maximum(lo, 0)
+        self.region_hi[None] = np.minimum(hi, self.grid_shape)
+
     def _substep(self, step: int, s: int) -> None:
         self.contact_geometry(s, step, (s + 1) / self.substeps)
-        self.trial_deformation(s)
-        self.decompose()
-        self.return_mapping()
-        self.elastic_deformation(s)
-        self.elastic_stress(s)
+        self.constitutive(s)
         self.particle_to_grid(s)
         self.grid_update()
         self.grid_to_particle(s)
         self.particle_contact_and_advect(s)
 
+    def _restore_substep_temporaries(self, step: int, s: int) -> None:
+        """Recompute what substep s keeps in single-copy fields (grid, contact, stress), reusing the
+        SVD stored for the substep."""
+        self.contact_geometry(s, step, (s + 1) / self.substeps)
+        self.return_mapping(s)
+        self.elastic_stress(s)
+        self.particle_to_grid(s)
+        self.grid_update()
+        self.grid_to_particle(s)
+
     def _substep_backward(self, s: int) -> None:
-        self.clear_substep_gradients()
+        self.clear_substep_gradients(s)
         self.particle_contact_and_advect.grad(s)
-        self.grid_to_particle.grad(s)
+        self.grid_to_particle_adjoint(s)
         self.grid_update.grad()
-        self.particle_to_grid.grad(s)
+        self.particle_to_grid_adjoint(s)
         self.elastic_stress.grad(s)
         self.elastic_deformation.grad(s)
-        self.return_mapping.grad()
-        self.decompose_backward()
+        self.return_mapping.grad(s)
+        self.decompose_backward(s)
         self.trial_deformation.grad(s)
 
     def forward(self, scene: Scene, params: Parameters) -> np.ndarray:
@@ -485,6 +567,7 @@ class Simulator:
         checkpoints[0, :, 15:] = np.eye(3).reshape(1, 9)
         self.load_state(checkpoints[0])
         for step in range(steps):
+            self._set_active_region(checkpoints[step])
             for s in range(self.substeps):
                 self._substep(step, s)
             status = self.store_state(self.substeps, checkpoints[step + 1])
@@ -510,10 +593,11 @@ class Simulator:
         for step in reversed(range(len(checkpoints) - 1)):
             self.carry_gradient(self.substeps)
             self.load_state(checkpoints[step])
+            self._set_active_region(checkpoints[step])
             for s in range(self.substeps):
                 self._substep(step, s)
             for s in reversed(range(self.substeps)):
-                self._substep(step, s)  # restores the substep's grid and temporaries
+                self._restore_substep_temporaries(step, s)
                 self._substep_backward(s)
         self.material.grad()
         grads = {name: float(getattr(self, name).grad[None]) for name in NAMES}

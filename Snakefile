@@ -1,0 +1,27 @@
+"""DPSI: differentiable physics-based system identification of elastoplastic objects.
+
+    snakemake -j1 tables                       # the quick default (config/config.yaml)
+    snakemake -j1 --configfile config/paper.yaml tables
+    snakemake --profile profiles/slurm --configfile config/paper.yaml all
+"""
+
+from snakemake.utils import min_version
+
+min_version("9.0")
+
+
+configfile: "config/config.yaml"
+
+
+include: "workflow/rules/common.smk"
+
+
+if "twin" in config:
+
+    include: "workflow/rules/twin.smk"
+
+
+include: "workflow/rules/reconstruction.smk"
+include: "workflow/rules/identification.smk"
+include: "workflow/rules/evaluation.smk"
+include: "workflow/rules/reporting.smk"

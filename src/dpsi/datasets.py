@@ -1,0 +1,96 @@
+"""The datasets of SPEC §6, selected from a datapoints table (columns as in :data:`dpsi.rawdata.COLUMNS`).
+
+Per level, motion A is poking-1 / poking-shifting-1 and motion B poking-2 / poking-shifting-2:
+
+- ``12-mix``: both motions × 3 effectors × the first 2 train datapoints of each combination;
+- ``6-mix``: the same with the first 1;
+- ``1-rectangle``, ``1-round``, ``1-cylinder``: the first train datapoint of motion B with that effector.
+
+"First" means in table order. Validation sets are the validation-role datapoints of a level, the
+out-of-distribution set the ood-role ones.
+"""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from dpsi.motions import MOTIONS
+from dpsi.rawdata import COLUMNS, RawDataset
+
+DATASETS = ("12-mix", "6-mix", "1-rectangle", "1-round", "1-cylinder")
+EFFECTORS = ("rectangle", "round", "cylinder")
+MOTION_A = {1: "poking-1", 2: "poking-shifting-1"}
+MOTION_B = {1: "poking-2", 2: "poking-shifting-2"}
+LONG_MOTIONS = tuple(name for name, m in MOTIONS.items() if m.level is None)
+"""The out-of-distribution motions, each made with its own effector."""
+
+
+def _frame(table: pd.DataFrame | RawDataset) -> pd.DataFrame:
+    """The table as strings, from a DataFrame or a loaded raw dataset."""
+    if isinstance(table, RawDataset):
+        table = pd.DataFrame([{c: getattr(d, c) for c in COLUMNS} for d in table.datapoints])
+    missing = [c for c in COLUMNS if c not in table.columns]
+    if missing:
+        raise ValueError(f"datapoints table lacks column(s) {missing}; expected {list(COLUMNS)}")
+    return table[list(COLUMNS)].astype(str)
+
+
+def _level(level: int) -> str:
+    if level not in MOTION_A:
+        raise ValueError(f"level must be 1 or 2, not {level!r}")
+    return str(level)
+
+
+def _recipe(level: int, name: str) -> list[tuple[str, str, int]]:
+    """(motion, effector, how many) making up dataset ``name`` at ``level``."""
+    if name in ("12-mix", "6-mix"):
+        n = 2 if name == "12-mix" else 1
+        return [(m[level], e, n) for m in (MOTION_A, MOTION_B) for e in EFFECTORS]
+    if name.startswith("1-") and name[2:] in EFFECTORS:
+        return [(MOTION_B[level], name[2:], 1)]
+    raise ValueError(f"unknown dataset {name!r}; known datasets are {list(DATASETS)}")
+
+
+def select(table: pd.DataFrame | RawDataset, level: int, name: str, material: str = "clay") -> list[str]:
+    """Ids of the train datapoints forming dataset ``name`` (one of :data:`DATASETS`) at ``level`` for
+    ``material``, in recipe order (motion A before B, effectors as in :data:`EFFECTORS`). Raises
+    ``ValueError`` listing every motion × effector combination with too few train datapoints."""
+    df = _frame(table)
+    level_text = _level(level)
+    recipe = _recipe(level, name)
+    train = df[(df.level == level_text) & (df.role == "train") & (df.material == material)]
+    ids, missing = [], []
+    for motion, effector, n in recipe:
+        found = train.id[(train.motion == motion) & (train.effector == effector)].tolist()
+        if len(found) < n:
+            missing.append(f"{n} of {motion} with {effector} (found {len(found)})")
+        ids += found[:n]
+    if missing:
+        raise ValueError(f"dataset {name} (level {level}, {material}) lacks train datapoints: "
+                         + "; ".join(missing))
+    return ids
+
+
+def _role(table, role: str, material: str, level: int | None = None) -> list[str]:
+    df = _frame(table)
+    keep = (df.role == role) & (df.material == material)
+    if level is not None:
+        keep &= df.level == _level(level)
+    ids = df.id[keep].tolist()
+    if not ids:
+        where = f" of level {level}" if level is not None else ""
+        raise ValueError(f"the datapoints table has no {role} datapoints{where} for material {material!r}")
+    return ids
+
+
+def validation(table: pd.DataFrame | RawDataset, level: int, material: str = "clay") -> list[str]:
+    """Ids of the validation datapoints of ``level`` and ``material``, in table order."""
+    return _role(table, "validation", material, level)
+
+
+def ood(table: pd.DataFrame | RawDataset, material: str = "clay") -> list[str]:
+    """Ids of the out-of-distribution (ood-role) datapoints of ``material``, in table order."""
+    return _role(table, "ood", material)
+
+
+__all__ = ["DATASETS", "EFFECTORS", "MOTION_A", "MOTION_B", "LONG_MOTIONS", "select", "validation", "ood"]

@@ -1,0 +1,296 @@
+"""Gradient-based identification of θ from a training set, with validation (SPEC §6).
+
+A run is (level, loss, training datapoints, validation datapoints, seed, iterations, initial values).
+Its log has one row per parameter vector θ_k, k = 0 … iterations: θ_0 is the initial guess and θ_k
+the values after k Adam updates. Row k holds θ_k, the mean training loss (mm) and the screened mean
+gradient at θ_k (the gradient that makes θ_{k+1}), and the five validation metrics (mm) at θ_k,
+averaged over the validation datapoints. So row k ≥ 1 is the paper's record "after update k" and
+row 0 adds the initial values (for figures); the best iteration is chosen among the updated rows
+k ≥ 1 only, as in the paper. (The last row's gradient is computed but not applied: ~1 % extra work.)
+
+A datapoint whose simulation raises :class:`SimulationError` or whose gradient fails
+:func:`dpsi.optim.screen_gradients` is skipped for that row and counted. If every training
+datapoint is skipped, no update is possible and — the simulation being deterministic — none ever
+will be, so the run stops early and says so in its summary.
+
+Output folder: ``log.csv`` (the rows), ``summary.json`` (best row, its parameters, relative errors
+against a known truth) and ``state.json`` (Adam state + rows, rewritten atomically after every row).
+Running again with the same arguments resumes from the last completed row and gives the same
+result as an uninterrupted run; asking for more iterations than a finished run had extends it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Sequence, TextIO
+
+import numpy as np
+import pandas as pd
+
+from dpsi.datapoint import Datapoint
+from dpsi.losses import LOSSES, VALIDATION_METRICS, HeightMapTarget, Targets, loss_by_name, validation_metrics
+from dpsi.optim import Adam, screen_gradients
+from dpsi.parameters import IDENTIFIED, LEVEL1_FIXED, NAMES, Parameters, random_initial
+from dpsi.pointclouds import atomic_output
+from dpsi.simulation import SimulationError, Simulator, SimulatorConfig
+
+LOG_FILE, SUMMARY_FILE, STATE_FILE = "log.csv", "summary.json", "state.json"
+STATE_VERSION = 1
+
+METRICS = tuple(VALIDATION_METRICS)
+"""The five validation metrics (mm): pcd_cd, prt_cd, pcd_emd, prt_emd, heightmap_mm."""
+
+COLUMNS = ("iteration", *NAMES, "train_loss_mm", *(f"grad_{n}" for n in NAMES),
+           *(f"val_{m}" for m in METRICS), "skipped", "val_skipped", "wall_s")
+"""Log columns: parameters in their SI units, gradients in mm per parameter unit, wall time in s."""
+
+_CANNOT_UPDATE = "every training datapoint was skipped at iteration {k}, so θ cannot change any more"
+
+
+class IdentificationError(ValueError):
+    """Bad run arguments, or an output folder holding a different run."""
+
+
+def targets(dp: Datapoint) -> Targets:
+    """The loss targets of a datapoint."""
+    return Targets(pcd=dp.pcd_target, prt=dp.prt_target, heightmap=HeightMapTarget(dp.heightmap, dp.centre_xy))
+
+
+def evaluate(simulator: Simulator, dp: Datapoint, params: Parameters) -> dict[str, float]:
+    """Simulate ``dp`` with ``params`` and return its five validation metrics (mm); raises
+    :class:`SimulationError` if the simulation fails."""
+    final = simulator.forward(dp.scene(), params)
+    return validation_metrics(final, dp.pcd_target, dp.prt_target, dp.heightmap, dp.centre_xy)
+
+
+def _nan_gradient() -> dict[str, float]:
+    return {n: math.nan for n in NAMES}
+
+
+def training_gradient(simulator: Simulator, training: Sequence[Datapoint], params: Parameters,
+                      loss: str) -> tuple[float, dict[str, float] | None, int]:
+    """Mean loss (mm) and screened mean gradient (mm per parameter unit; None if all skipped) over the
+    training datapoints kept by the SPEC §6 rules, and the number skipped."""
+    loss_fn = loss_by_name(loss)
+    values, gradients = [], []
+    for dp in training:
+        try:
+            value, d_positions = loss_fn(simulator.forward(dp.scene(), params), targets(dp))
+            gradient = simulator.backward(d_positions)
+        except SimulationError:
+            value, gradient = math.nan, _nan_gradient()
+        values.append(value)
+        gradients.append(gradient)
+    screened = screen_gradients(gradients, values)
+    kept = [v for v, g in zip(values, gradients) if screen_gradients([g], [v]).skipped == 0]
+    return (float(np.mean(kept)) if kept else math.nan), screened.gradient, screened.skipped
+
+
+def validation(simulator: Simulator, datapoints: Sequence[Datapoint], params: Parameters) -> tuple[dict[str, float], int]:
+    """The five metrics (mm) averaged over the datapoints whose simulation succeeds (NaN if none does),
+    and the number that failed."""
+    rows = []
+    for dp in datapoints:
+        try:
+            rows.append(evaluate(simulator, dp, params))
+        except SimulationError:
+            pass
+    means = {m: float(np.mean([r[m] for r in rows])) if rows else math.nan for m in METRICS}
+    return means, len(datapoints) - len(rows)
+
+
+def check_run(level: int, loss: str, training: Sequence[Datapoint], validation_set: Sequence[Datapoint],
+              seed: int, iterations: int, initial: Parameters | None, config: SimulatorConfig) -> Parameters:
+    """Validate the arguments of a run (no simulation) and return its initial θ: ``initial`` (range-checked,
+    with the level-1 frictions replaced by :data:`LEVEL1_FIXED`) or random from ``seed``."""
+    if level not in IDENTIFIED:
+        raise IdentificationError(f"level must be one of {sorted(IDENTIFIED)}, got {level!r}")
+    if loss not in LOSSES:
+        raise IdentificationError(f"unknown loss {loss!r}; known losses are {list(LOSSES)}")
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        raise IdentificationError(f"iterations must be a positive integer, got {iterations!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise IdentificationError(f"seed must be a non-negative integer, got {seed!r}")
+    emd_targets = {"pcd_emd": ("pcd_target",), "prt_emd": ("prt_target",)}.get(loss, ())
+    for name, dataset, fields in (("training", training, emd_targets),
+                                  ("validation", validation_set, ("pcd_target", "prt_target"))):
+        if len(dataset) == 0:
+            raise IdentificationError(f"the {name} dataset is empty")
+        for dp in dataset:
+            _check_datapoint(dp, name, config, fields)
+    if initial is None:
+        return random_initial(seed, level)
+    try:
+        initial.check_range()
+    except ValueError as err:
+        raise IdentificationError(f"initial value: {err}") from None
+    return initial.replace(**LEVEL1_FIXED) if level == 1 else initial
+
+
+def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_targets: Sequence[str]) -> None:
+    """Raise naming ``dp`` if the simulator cannot hold it or one of its ``emd_targets`` (fields measured
+    by an earth mover's distance) is empty or has more points than the particles."""
+    where = f"{dataset} datapoint {dp.id!r}"
+    n = len(dp.particles)
+    if n > config.max_particles:
+        raise IdentificationError(f"{where} has {n} particles, more than the simulator's max_particles="
+                                  f"{config.max_particles}")
+    if dp.trajectory.n_steps > config.max_steps:
+        raise IdentificationError(f"{where} has {dp.trajectory.n_steps} steps, more than the simulator's "
+                                  f"max_steps={config.max_steps}")
+    for field in emd_targets:
+        k = len(getattr(dp, field))
+        if not 0 < k <= n:
+            raise IdentificationError(f"{where}: {field} has {k} points; the earth mover's distance needs "
+                                      f"between 1 and the particle count {n}")
+
+
+def _fingerprint(level, loss, seed, initial: Parameters, training, validation_set) -> dict:
+    """What a resumed run must share with the stored one."""
+    describe = lambda dps: [[dp.id, len(dp.particles), dp.trajectory.n_steps] for dp in dps]  # noqa: E731
+    return {"level": level, "loss": loss, "seed": seed, "initial": initial.as_dict(),
+            "training": describe(training), "validation": describe(validation_set)}
+
+
+def _load_state(path: Path, fingerprint: dict) -> dict | None:
+    if not path.exists():
+        return None
+    try:
+        state = json.loads(path.read_text())
+        stored = state["run"]
+        state["adam"], state["log"]
+    except (ValueError, KeyError, TypeError) as err:
+        raise IdentificationError(f"{path} is not a readable identification state ({err}); delete it to restart") from None
+    if state.get("version") != STATE_VERSION:
+        raise IdentificationError(f"{path} has state version {state.get('version')}, expected {STATE_VERSION}")
+    differ = sorted(k for k in fingerprint if stored.get(k) != fingerprint[k])
+    if differ:
+        raise IdentificationError(f"{path} belongs to a different run (differs in {differ}); "
+                                  "use another output folder or delete it")
+    return state
+
+
+def _save_state(path: Path, fingerprint: dict, adam: Adam, rows: list[dict]) -> None:
+    with atomic_output(path) as tmp:
+        tmp.write_text(json.dumps({"version": STATE_VERSION, "run": fingerprint, "adam": adam.state(), "log": rows}))
+
+
+def _row(k: int, params: Parameters, loss_mm: float, gradient: dict | None, skipped: int,
+         metrics: dict, val_skipped: int, wall_s: float) -> dict:
+    gradient = gradient or _nan_gradient()
+    return {"iteration": k, **params.as_dict(), "train_loss_mm": loss_mm,
+            **{f"grad_{n}": gradient[n] for n in NAMES}, **{f"val_{m}": metrics[m] for m in METRICS},
+            "skipped": skipped, "val_skipped": val_skipped, "wall_s": wall_s}
+
+
+def _gradient_of(row: dict) -> dict[str, float] | None:
+    gradient = {n: row[f"grad_{n}"] for n in NAMES}
+    return None if any(math.isnan(g) for g in gradient.values()) else gradient
+
+
+def summarise(rows: Sequence[dict], fingerprint: dict, iterations: int, truth: Parameters | None) -> dict:
+    """The run summary: best row (lowest finite validation height-map distance among rows k ≥ 1, or
+    row 0 if there are none), its parameters and metrics, the final parameters and, given ``truth``,
+    the relative error |best − truth| / |truth| of each parameter."""
+    candidates = [r for r in (rows[1:] or rows) if r["val_heightmap_mm"] is not None
+                  and math.isfinite(r["val_heightmap_mm"])]
+    best = min(candidates, key=lambda r: r["val_heightmap_mm"]) if candidates else None
+    completed = rows[-1]["iteration"]
+    out = {**fingerprint, "iterations": iterations, "completed_iterations": completed,
+           "stopped_early": None if completed == iterations else _CANNOT_UPDATE.format(k=completed),
+           "skipped_total": int(sum(r["skipped"] for r in rows)),
+           "wall_s": float(sum(r["wall_s"] for r in rows)),
+           "final": {"iteration": completed, "parameters": {n: rows[-1][n] for n in NAMES}},
+           "best": None if best is None else {
+               "iteration": best["iteration"], "parameters": {n: best[n] for n in NAMES},
+               "validation": {m: best[f"val_{m}"] for m in METRICS}}}
+    if truth is not None:
+        out["truth"] = truth.as_dict()
+        out["relative_error"] = None if best is None else {
+            n: abs(best[n] - getattr(truth, n)) / abs(getattr(truth, n)) for n in NAMES}
+    return out
+
+
+class Progress:
+    """Progress on ``stream`` (default stderr): a redrawn bar with loss and ETA on a terminal,
+    otherwise one plain line per row."""
+
+    def __init__(self, total: int, label: str, stream: TextIO | None = None):
+        self.total, self.label = total, label
+        self.stream = stream or sys.stderr
+        self.bar = self.stream.isatty()
+        self.times: list[float] = []
+
+    def update(self, row: dict) -> None:
+        k = row["iteration"]
+        self.times.append(row["wall_s"])
+        if self.bar:
+            filled = round(20 * k / self.total)
+            eta = float(np.mean(self.times)) * (self.total - k)
+            self.stream.write(f"\r{self.label} [{'#' * filled}{'.' * (20 - filled)}] {k}/{self.total} "
+                              f"loss {row['train_loss_mm']:.1f} mm ETA {eta:.0f} s\033[K")
+            if k == self.total:
+                self.stream.write("\n")
+        else:
+            self.stream.write(f"{self.label} {k}/{self.total}: loss {row['train_loss_mm']:.1f} mm, val height map "
+                              f"{row['val_heightmap_mm']:.1f} mm, skipped {row['skipped']}, {row['wall_s']:.1f} s\n")
+        self.stream.flush()
+
+    def message(self, text: str) -> None:
+        self.stream.write(("\n" if self.bar else "") + f"{self.label} {text}\n")
+        self.stream.flush()
+
+
+def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Datapoint],
+             validation_set: Sequence[Datapoint], seed: int = 0, iterations: int = 100,
+             initial: Parameters | None = None, truth: Parameters | None = None,
+             simulator: Simulator | None = None, progress: TextIO | None = None) -> dict:
+    """Run (or resume) an identification into ``out_dir`` and return its summary (see module doc).
+
+    ``initial``: the starting θ (default random from ``seed`` in the level's ranges); ``truth``: known
+    parameters for the relative errors; ``simulator``: the process's simulator (default: one with
+    :class:`SimulatorConfig` defaults); ``progress``: stream for progress messages (default stderr).
+    """
+    config = simulator.config if simulator is not None else SimulatorConfig()
+    initial = check_run(level, loss, training, validation_set, seed, iterations, initial, config)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fingerprint = _fingerprint(level, loss, seed, initial, training, validation_set)
+    state = _load_state(out_dir / STATE_FILE, fingerprint)
+    adam = Adam.from_state(state["adam"]) if state else Adam.for_level(initial, level)
+    rows: list[dict] = state["log"] if state else []
+    if rows and rows[-1]["iteration"] > iterations:
+        raise IdentificationError(f"{out_dir / STATE_FILE} already has {rows[-1]['iteration']} iterations, "
+                                  f"more than the {iterations} asked for")
+    bar = Progress(iterations, f"identify L{level} {loss} seed {seed}", progress)
+    while not rows or rows[-1]["iteration"] < iterations:
+        if rows:
+            gradient = _gradient_of(rows[-1])
+            if gradient is None:
+                bar.message("stopped early: " + _CANNOT_UPDATE.format(k=rows[-1]["iteration"]))
+                break
+            adam.step(gradient)
+        if simulator is None:
+            simulator = Simulator(config)
+        start = time.perf_counter()
+        params = initial.replace(**adam.values)
+        loss_mm, gradient, skipped = training_gradient(simulator, training, params, loss)
+        metrics, val_skipped = validation(simulator, validation_set, params)
+        rows.append(_row(len(rows), params, loss_mm, gradient, skipped, metrics, val_skipped,
+                         time.perf_counter() - start))
+        _save_state(out_dir / STATE_FILE, fingerprint, adam, rows)
+        bar.update(rows[-1])
+    with atomic_output(out_dir / LOG_FILE) as tmp:
+        pd.DataFrame(rows, columns=list(COLUMNS)).to_csv(tmp, index=False)
+    summary = summarise(rows, fingerprint, iterations, truth)
+    with atomic_output(out_dir / SUMMARY_FILE) as tmp:
+        tmp.write_text(json.dumps(summary, indent=2, allow_nan=True) + "\n")
+    return summary
+
+
+__all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "IdentificationError", "targets",
+           "evaluate", "training_gradient", "validation", "check_run", "summarise", "Progress", "identify"]

@@ -1,0 +1,138 @@
+"""Turning one raw datapoint into a prepared :class:`~dpsi.datapoint.Datapoint` (SPEC §3), stage by stage.
+
+Stages, each usable alone (the workflow runs them as separate rules with files in between):
+
+1. :func:`fuse_state` – camera views → closed fused cloud (skipped for a state given as a fused cloud);
+2. :func:`dpsi.reconstruction.meshing.reconstruct_mesh` – fused cloud → watertight mesh (skipped for a
+   state given as a mesh);
+3. :func:`fill_particles` – before mesh → particles at a density;
+4. :func:`targets` – PRT target, PCD target and height map of the after state;
+5. :func:`trajectory_and_start` – the resampled planner trajectory and the tip's start;
+
+and :func:`build_datapoint` / :func:`prepare_datapoint` composing them. The after state's *surface
+points* (for the PCD target and the height map) are its full-resolution fused cloud, or, for a state
+given only as a mesh, points sampled on the mesh (:func:`surface_points`). Units: metres, robot base frame.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
+import numpy as np
+import open3d as o3d
+
+from dpsi.datapoint import Datapoint
+from dpsi.heightmap import height_map
+from dpsi.motions import Trajectory, read_waypoints, resample
+from dpsi.pointclouds import View
+from dpsi.rawdata import RawDatapoint, RawDataset, StateSource
+from dpsi.reconstruction.filling import fill, pcd_target, prt_target
+from dpsi.reconstruction.fusion import fuse
+from dpsi.reconstruction.meshing import reconstruct_mesh
+
+SURFACE_SPACING = 0.001
+"""Mean spacing (m) of the points sampled on a mesh given instead of a fused cloud (the fusion voxel)."""
+
+
+def fuse_state(views: Sequence[View], workspace, table_z: float, name: str = "state") -> np.ndarray:
+    """Closed fused cloud (n, 3) in m of one state's camera ``views`` (SPEC §3.1), cropped to the
+    ``workspace`` box (lo, hi) in m with the table at z = ``table_z``; errors name ``name``."""
+    if workspace is None:
+        raise ValueError(f"{name}: fusing camera views needs a workspace box (lo, hi); set it in dataset.yaml")
+    try:
+        return fuse(views, *workspace, table_z=table_z)
+    except ValueError as e:
+        raise ValueError(f"{name}: {e}") from None
+
+
+def surface_points(mesh: o3d.geometry.TriangleMesh, spacing: float = SURFACE_SPACING) -> np.ndarray:
+    """Points (n, 3) in m spread uniformly over the surface of ``mesh``, about ``spacing`` m apart
+    (one per spacing² of area). Deterministic."""
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    if len(f) == 0:
+        raise ValueError("surface_points: the mesh has no triangles")
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    n = max(1, int(np.ceil(area.sum() / spacing**2)))
+    rng = np.random.default_rng(0)
+    tri = rng.choice(len(f), size=n, p=area / area.sum())
+    u, w = rng.random(n), rng.random(n)
+    flip = u + w > 1
+    u[flip], w[flip] = 1 - u[flip], 1 - w[flip]
+    return a[tri] + u[:, None] * (b[tri] - a[tri]) + w[:, None] * (c[tri] - a[tri])
+
+
+def reconstruct_state(source: StateSource, workspace, table_z: float,
+                      name: str = "state") -> tuple[np.ndarray, o3d.geometry.TriangleMesh]:
+    """Surface points (n, 3) in m and watertight mesh of one state, entering the reconstruction at the
+    stage matching the form it is given in (views: fusion; fused cloud: meshing; mesh: as it is)."""
+    data = source.load()
+    if source.form == "mesh":
+        return surface_points(data), data
+    points = fuse_state(data, workspace, table_z, name) if source.form == "views" else data
+    return points, reconstruct_mesh(points, name=name)
+
+
+def fill_particles(mesh: o3d.geometry.TriangleMesh, density: float, name: str = "before mesh") -> np.ndarray:
+    """Particles (n, 3) in m filling ``mesh`` at ``density`` particles/m³ (SPEC §3.3); each stands for
+    1/density m³. ``ValueError`` naming ``name`` if none fits."""
+    particles = fill(mesh, density)
+    if len(particles) == 0:
+        raise ValueError(f"{name}: no particles fit inside the mesh at {density:.4g} particles/m³")
+    return particles
+
+
+def footprint_centre(particles: np.ndarray) -> np.ndarray:
+    """Middle (x, y) in m of the particles' footprint: the height-map centre, also the simulated box's
+    centre (:attr:`dpsi.simulation.Scene.centre_xy`)."""
+    return 0.5 * (particles[:, :2].min(axis=0) + particles[:, :2].max(axis=0))
+
+
+def targets(after_mesh: o3d.geometry.TriangleMesh, after_points: np.ndarray, n_particles: int, density: float,
+            centre_xy, table_z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Loss targets of the after state (SPEC §3.4–3.5): the PRT target (particles in ``after_mesh``, at
+    most ``n_particles``, starting at ``density``), the PCD target (``after_points`` voxel-downsampled)
+    and the 32 × 32 height map (m) of ``after_points`` centred at ``centre_xy`` (m), empty cells at
+    ``table_z``."""
+    prt, _ = prt_target(after_mesh, density, n_particles)
+    return prt, pcd_target(after_points), height_map(after_points, centre_xy, floor=table_z)
+
+
+def trajectory_and_start(path: str | os.PathLike) -> tuple[Trajectory, np.ndarray]:
+    """The planner trajectory in ``path`` resampled to 0.01 s steps, and the tip's start (3,) in m: its
+    first waypoint, in the base frame."""
+    waypoints = read_waypoints(path)
+    return resample(waypoints), waypoints.xyz[0].copy()
+
+
+def build_datapoint(datapoint: RawDatapoint, before_mesh: o3d.geometry.TriangleMesh,
+                    after_mesh: o3d.geometry.TriangleMesh, after_points: np.ndarray, density: float,
+                    table_z: float) -> Datapoint:
+    """The prepared datapoint from the reconstructed states: particles filled in ``before_mesh`` at
+    ``density`` particles/m³, targets from ``after_mesh`` and the after surface points, and the
+    trajectory of the raw ``datapoint``."""
+    particles = fill_particles(before_mesh, density, f"{datapoint.id} before mesh")
+    centre = footprint_centre(particles)
+    prt, pcd, hm = targets(after_mesh, after_points, len(particles), density, centre, table_z)
+    trajectory, start = trajectory_and_start(datapoint.trajectory)
+    return Datapoint(datapoint.id, datapoint.motion, datapoint.effector, particles, 1.0 / density, trajectory,
+                     start, table_z, pcd, prt, hm, centre)
+
+
+def prepare_datapoint(dataset: RawDataset, datapoint: str | RawDatapoint, density: float) -> Datapoint:
+    """All stages in memory: the datapoint (an id or a row of ``dataset``) prepared at ``density``
+    particles/m³."""
+    if isinstance(datapoint, str):
+        found = [d for d in dataset.datapoints if d.id == datapoint]
+        if not found:
+            raise KeyError(f"datapoint {datapoint!r} is not in the raw dataset {dataset.root}")
+        datapoint = found[0]
+    _, before_mesh = reconstruct_state(datapoint.before, dataset.workspace, dataset.table_z, f"{datapoint.id} before")
+    after_points, after_mesh = reconstruct_state(datapoint.after, dataset.workspace, dataset.table_z,
+                                                 f"{datapoint.id} after")
+    return build_datapoint(datapoint, before_mesh, after_mesh, after_points, density, dataset.table_z)
+
+
+__all__ = ["SURFACE_SPACING", "fuse_state", "surface_points", "reconstruct_state", "fill_particles",
+           "footprint_centre", "targets", "trajectory_and_start", "build_datapoint", "prepare_datapoint"]

@@ -1,0 +1,197 @@
+"""Figures of identification runs and of simulated vs real outcomes (SPEC §7).
+
+Every figure is written twice, as a PNG and a PDF, each atomically. Figures are built on the Agg
+canvas without pyplot, so no GUI backend or global figure state is involved.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib import colors, ticker
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+
+from dpsi.datapoint import Datapoint
+from dpsi.heightmap import SIZE, height_map, heightmap_distance_mm
+from dpsi.identification import METRICS
+from dpsi.parameters import IDENTIFIED, LOWER, UPPER
+from dpsi.pointclouds import atomic_output
+
+DPI = 150
+"""Resolution of the PNG files (dots per inch)."""
+
+MM_PER_M = 1000.0
+
+METRIC_LABELS = {"pcd_cd": "PCD-CD (mm)", "prt_cd": "PRT-CD (mm)", "pcd_emd": "PCD-EMD (mm)",
+                 "prt_emd": "PRT-EMD (mm)", "heightmap_mm": "height map (mm)"}
+"""Axis label of each validation metric."""
+
+PARAMETER_AXES = {"E": ("$E$ (kPa)", 1e-3), "nu": (r"$\nu$ (-)", 1.0), "rho": (r"$\rho$ (kg/m³)", 1.0),
+                  "yield_stress": (r"$\sigma_y$ (kPa)", 1e-3), "mu_table": (r"$\mu_\mathrm{table}$ (-)", 1.0),
+                  "mu_effector": (r"$\mu_\mathrm{effector}$ (-)", 1.0)}
+"""Axis label and the factor from the SI value to the plotted unit, per parameter."""
+
+RUN_KEYS = ("level", "loss", "dataset", "seed", "iteration")
+"""Columns that identify one point of one run in the table given to :func:`plot_runs`."""
+
+
+def new_figure(width: float, height: float) -> Figure:
+    """An empty figure of ``width`` × ``height`` inches on the Agg canvas, with constrained layout."""
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def save(fig: Figure, png_path: str | Path, pdf_path: str | Path) -> None:
+    """Write ``fig`` to ``png_path`` (at :data:`DPI`) and ``pdf_path``, each atomically."""
+    for path, fmt in ((Path(png_path), "png"), (Path(pdf_path), "pdf")):
+        if path.suffix.lower() != f".{fmt}":
+            raise ValueError(f"{path}: a {fmt.upper()} figure needs the suffix .{fmt}")
+    for path, fmt in ((png_path, "png"), (pdf_path, "pdf")):
+        with atomic_output(path) as tmp:
+            fig.savefig(tmp, format=fmt, dpi=DPI)
+
+
+def _check_runs(runs: pd.DataFrame, level: int) -> pd.DataFrame:
+    """The rows of ``level``, after checking the table has what :func:`plot_runs` needs."""
+    if level not in IDENTIFIED:
+        raise ValueError(f"unknown level {level}; levels are {sorted(IDENTIFIED)}")
+    needed = [*RUN_KEYS, *(f"val_{m}" for m in METRICS), *IDENTIFIED[level]]
+    missing = [c for c in needed if c not in runs.columns]
+    if missing:
+        raise ValueError(f"runs table lacks column(s) {missing}")
+    if runs.empty:
+        raise ValueError("runs table is empty: nothing to plot")
+    rows = runs[runs["level"] == level]
+    if rows.empty:
+        raise ValueError(f"runs table has no rows of level {level}; it has levels {sorted(runs['level'].unique())}")
+    return rows
+
+
+def plot_runs(runs: pd.DataFrame, level: int, png_path: str | Path, pdf_path: str | Path) -> None:
+    """Validation metrics (mm) and identified parameters of ``level`` over the iterations.
+
+    ``runs`` holds the identification log columns plus level, loss, dataset and seed. One column per
+    dataset; one row per validation metric then per identified parameter (y-limits = its range); each
+    seed a thin dotted line, the mean over seeds a solid line, one colour per loss."""
+    rows = _check_runs(runs, level)
+    datasets, losses = list(pd.unique(rows["dataset"])), list(pd.unique(rows["loss"]))
+    quantities = [(f"val_{m}", METRIC_LABELS[m], 1.0) for m in METRICS]
+    quantities += [(n, *PARAMETER_AXES[n]) for n in IDENTIFIED[level]]
+    colour = {loss: f"C{k}" for k, loss in enumerate(losses)}
+
+    fig = new_figure(1.4 + 3.0 * len(datasets), 1.0 + 1.45 * len(quantities))
+    axes = fig.subplots(len(quantities), len(datasets), sharex=True, sharey="row", squeeze=False)
+    for c, dataset in enumerate(datasets):
+        axes[0, c].set_title(str(dataset), fontsize="medium")
+        axes[-1, c].set_xlabel("iteration")
+        for loss in losses:
+            one = rows[(rows["dataset"] == dataset) & (rows["loss"] == loss)]
+            for r, (column, _, scale) in enumerate(quantities):
+                by_seed = one.pivot_table(index="iteration", columns="seed", values=column, dropna=False) * scale
+                _plot_seeds(axes[r, c], by_seed, colour[loss])
+    for r, (column, label, scale) in enumerate(quantities):
+        axes[r, 0].set_ylabel(label)
+        if column in LOWER:
+            axes[r, 0].set_ylim(LOWER[column] * scale, UPPER[column] * scale)
+    for ax in axes.flat:
+        ax.xaxis.set_major_locator(ticker.MaxNLocator(nbins=5, integer=True, steps=[1, 2, 5, 10]))
+        ax.yaxis.set_major_locator(ticker.MaxNLocator(nbins=4))
+        ax.grid(alpha=0.3)
+    handles = [Line2D([], [], color=colour[loss], label=str(loss)) for loss in losses]
+    handles += [Line2D([], [], color="grey", label="mean over seeds"),
+                Line2D([], [], color="grey", linestyle=":", label="one seed")]
+    fig.legend(handles=handles, loc="outside upper center", ncols=min(len(handles), 2 + len(datasets)),
+               frameon=False)
+    fig.suptitle(f"Level {level}: validation metrics and identified parameters")
+    save(fig, png_path, pdf_path)
+
+
+def _plot_seeds(ax, by_seed: pd.DataFrame, colour: str) -> None:
+    """Each seed (columns of ``by_seed``, indexed by iteration) dotted and their mean solid."""
+    marker = "o" if len(by_seed) == 1 else None
+    for seed in by_seed.columns:
+        ax.plot(by_seed.index, by_seed[seed], color=colour, linestyle=":", linewidth=0.8, alpha=0.7,
+                marker=marker, markersize=3)
+    ax.plot(by_seed.index, by_seed.mean(axis=1, skipna=True), color=colour, linewidth=1.6,
+            marker=marker, markersize=4)
+
+
+def _checked_points(points, what: str) -> np.ndarray:
+    """``points`` as a finite (n, 3) float array with n ≥ 1, else ``ValueError`` naming ``what``."""
+    points = np.asarray(points, dtype=float)
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
+        raise ValueError(f"{what} must have shape (n, 3) with n ≥ 1, got {points.shape}")
+    if not np.isfinite(points).all():
+        raise ValueError(f"{what} contain NaN or inf")
+    return points
+
+
+def plot_heightmaps(datapoint: Datapoint, final_particles, png_path: str | Path, pdf_path: str | Path,
+                    title: str = "") -> None:
+    """Real vs simulated height map (mm above the table) and simulated − real (mm), with the
+    height-map distance (mm) in the title. ``final_particles`` (n, 3) in m."""
+    real = np.asarray(datapoint.heightmap, dtype=float)
+    sim = height_map(_checked_points(final_particles, "final particles"), datapoint.centre_xy,
+                     cells=real.shape[0], floor=datapoint.table_z)
+    distance = heightmap_distance_mm(sim, real)
+    real_mm, sim_mm = ((m - datapoint.table_z) * MM_PER_M for m in (real, sim))
+    diff_mm = sim_mm - real_mm
+    half = 0.5 * SIZE * MM_PER_M
+    extent = (-half, half, -half, half)
+    heights = colors.Normalize(min(real_mm.min(), sim_mm.min()), max(real_mm.max(), sim_mm.max(), 1e-3))
+    largest = max(np.abs(diff_mm).max(), 1e-3)
+
+    fig = new_figure(12.0, 4.2)
+    axes = fig.subplots(1, 3)
+    panels = ((real_mm, "real", "viridis", heights), (sim_mm, "simulated", "viridis", heights),
+              (diff_mm, "simulated − real", "RdBu_r", colors.Normalize(-largest, largest)))
+    for ax, (values, name, cmap, norm) in zip(axes, panels):
+        image = ax.imshow(values.T, origin="lower", extent=extent, cmap=cmap, norm=norm)
+        ax.set_title(name)
+        ax.set_xlabel("x from map centre (mm)")
+        ax.set_aspect("equal")
+    axes[0].set_ylabel("y from map centre (mm)")
+    fig.colorbar(axes[1].images[0], ax=axes[:2], label="height above table (mm)", shrink=0.85)
+    fig.colorbar(image, ax=axes[2], label="difference (mm)", shrink=0.85)
+    fig.suptitle(_title(title, f"height-map distance {distance:.1f} mm"))
+    save(fig, png_path, pdf_path)
+
+
+def _title(title: str, detail: str) -> str:
+    return f"{title}\n{detail}" if title else detail
+
+
+def plot_particles(datapoint: Datapoint, final_particles, png_path: str | Path, pdf_path: str | Path,
+                   title: str = "") -> None:
+    """Particles before, simulated after and the PRT target, as 3D scatter plots in mm with equal
+    axis scales, shared limits and the same view. ``final_particles`` (n, 3) in m."""
+    panels = (("before", _checked_points(datapoint.particles, "datapoint particles")),
+              ("simulated after", _checked_points(final_particles, "final particles")),
+              ("target (PRT)", _checked_points(datapoint.prt_target, "PRT target")))
+    panels = [(name, points * MM_PER_M) for name, points in panels]
+    everything = np.concatenate([points for _, points in panels])
+    lo, hi = everything.min(axis=0), everything.max(axis=0)
+    pad = 0.05 * max(np.ptp(everything, axis=0).max(), 1.0)
+    lo, hi = lo - pad, hi + pad
+    heights = colors.Normalize(lo[2], hi[2])
+
+    fig = new_figure(13.0, 4.8)
+    for k, (name, points) in enumerate(panels):
+        ax = fig.add_subplot(1, 3, k + 1, projection="3d")
+        ax.scatter(*points.T, c=points[:, 2], cmap="viridis", norm=heights, s=2, depthshade=False)
+        ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]),
+               xlabel="x (mm)", ylabel="y (mm)", zlabel="z (mm)")
+        ax.set_box_aspect(hi - lo)
+        ax.view_init(elev=25, azim=-60)
+        ax.set_title(f"{name} (n = {len(points)})")
+    fig.suptitle(title)
+    save(fig, png_path, pdf_path)
+
+
+__all__ = ["DPI", "METRIC_LABELS", "PARAMETER_AXES", "new_figure", "save", "plot_runs", "plot_heightmaps",
+           "plot_particles"]

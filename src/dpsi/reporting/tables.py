@@ -1,0 +1,146 @@
+"""The paper's tables (SPEC §7) as pandas DataFrames, written as CSV, Markdown and LaTeX (booktabs).
+
+File names and CSV columns are an interface that other tools read:
+
+- ``motions.csv``: motion, segments, duration_s, real_waypoints, sim_steps
+- ``parameters.csv``: parameter, unit, min, max, step_level1, step_level2, hand_picked
+- ``best_params.csv``: level, loss, dataset, E, nu, rho, yield_stress, mu_table, mu_effector,
+  val_heightmap_mm (plus rows with dataset = "average" per loss, and loss = "hand-picked")
+- ``ood_heightmap.csv``: motion, config, loss, dataset, heightmap_mm (plus loss = "hand-picked" rows
+  and "average" rows)
+- ``recovery_error.csv``: level, loss, dataset, seed, parameter, truth, estimate, rel_error
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..motions import MOTIONS, plan, resample
+from ..parameters import HAND_PICKED, LOWER, NAMES, STEP_SIZE, UNITS, UPPER
+from ..pointclouds import atomic_output
+
+HAND_PICKED_LABEL = "hand-picked"
+AVERAGE_LABEL = "average"
+
+
+def motions_table() -> pd.DataFrame:
+    """SPEC §2: each motion's segments, real duration and waypoints, and the simulation steps that
+    resampling its planner trajectory gives."""
+    rows = []
+    for name, motion in MOTIONS.items():
+        segments = ", ".join(_segment_label(s) for s in motion.segments)
+        steps = resample(plan(motion)).n_steps
+        rows.append(dict(motion=name, segments=segments, duration_s=motion.duration,
+                         real_waypoints=motion.n_waypoints, sim_steps=steps))
+    return pd.DataFrame(rows)
+
+
+def _segment_label(segment) -> str:
+    sign = "+" if segment.amount > 0 else "-"
+    if segment.kind == "rotate":
+        return f"rotate {sign}{abs(math.degrees(segment.amount)):.0f} deg about z"
+    return f"{sign}{segment.axis} {abs(segment.amount):.3f} m"
+
+
+def parameters_table() -> pd.DataFrame:
+    """SPEC §1: ranges, Adam step sizes per level and the hand-picked values."""
+    return pd.DataFrame([dict(parameter=n, unit=UNITS[n], min=LOWER[n], max=UPPER[n], step_level1=STEP_SIZE[1][n],
+                              step_level2=STEP_SIZE[2][n], hand_picked=getattr(HAND_PICKED, n)) for n in NAMES])
+
+
+def best_params_table(summaries: list[dict], hand_picked: dict[int, float]) -> pd.DataFrame:
+    """The paper's main table: for each (level, loss, dataset) the parameters of the iteration with the
+    lowest validation height-map distance across seeds; per (level, loss) the average over datasets;
+    per level the hand-picked parameters' validation distance (``hand_picked``: level → mm).
+
+    ``summaries``: run summaries (identification ``summary.json``) with keys level, loss, dataset."""
+    rows = []
+    for (level, loss, dataset), runs in _group(summaries, ("level", "loss", "dataset")):
+        best = min((r["best"] for r in runs if r.get("best")), key=lambda b: b["validation"]["heightmap_mm"],
+                   default=None)
+        values = best["parameters"] if best else {n: math.nan for n in NAMES}
+        rows.append(dict(level=level, loss=loss, dataset=dataset, **values,
+                         val_heightmap_mm=best["validation"]["heightmap_mm"] if best else math.nan))
+    table = pd.DataFrame(rows, columns=["level", "loss", "dataset", *NAMES, "val_heightmap_mm"])
+    averages = (table.groupby(["level", "loss"], sort=False)[[*NAMES, "val_heightmap_mm"]].mean().reset_index()
+                .assign(dataset=AVERAGE_LABEL))
+    baseline = pd.DataFrame([dict(level=level, loss=HAND_PICKED_LABEL, dataset="", **HAND_PICKED.as_dict(),
+                                  val_heightmap_mm=mm) for level, mm in sorted(hand_picked.items())])
+    return (pd.concat([table, averages, baseline], ignore_index=True)
+            .sort_values(["level"], kind="stable")[table.columns].reset_index(drop=True))
+
+
+def ood_table(records: list[dict]) -> pd.DataFrame:
+    """Out-of-distribution height-map distances. ``records``: one per simulated (datapoint, parameter
+    source) with keys motion, config (the object configuration, e.g. its datapoint id), loss, dataset
+    (loss = "hand-picked" for the baseline), heightmap_mm. Adds the average over losses and datasets per
+    (motion, config) for the identified parameters."""
+    table = pd.DataFrame(records, columns=["motion", "config", "loss", "dataset", "heightmap_mm"])
+    identified = table[table.loss != HAND_PICKED_LABEL]
+    averages = (identified.groupby(["motion", "config"], sort=False)["heightmap_mm"].mean().reset_index()
+                .assign(loss=AVERAGE_LABEL, dataset=AVERAGE_LABEL))
+    return pd.concat([table, averages], ignore_index=True)[table.columns]
+
+
+def recovery_table(summaries: list[dict]) -> pd.DataFrame:
+    """For runs on the synthetic twin (summaries with a ``truth``): the relative error of every
+    parameter at the run's best iteration."""
+    rows = [dict(level=s["level"], loss=s["loss"], dataset=s["dataset"], seed=s["seed"], parameter=n,
+                 truth=s["truth"][n], estimate=s["best"]["parameters"][n],
+                 rel_error=abs(s["best"]["parameters"][n] - s["truth"][n]) / abs(s["truth"][n]))
+            for s in summaries if s.get("truth") and s.get("best") for n in NAMES]
+    return pd.DataFrame(rows, columns=["level", "loss", "dataset", "seed", "parameter", "truth", "estimate",
+                                       "rel_error"])
+
+
+def _group(records: list[dict], keys: tuple[str, ...]):
+    groups: dict[tuple, list[dict]] = {}
+    for r in records:
+        groups.setdefault(tuple(r[k] for k in keys), []).append(r)
+    return groups.items()
+
+
+# ------------------------------------------------------------------ writing
+def write_table(table: pd.DataFrame, csv_path: str | Path, caption: str = "") -> list[Path]:
+    """Write ``table`` as CSV at ``csv_path`` and as Markdown (.md) and LaTeX booktabs (.tex) beside it."""
+    csv_path = Path(csv_path)
+    outputs = [csv_path, csv_path.with_suffix(".md"), csv_path.with_suffix(".tex")]
+    texts = [table.to_csv(index=False), to_markdown(table, caption), to_latex(table, caption)]
+    for path, text in zip(outputs, texts):
+        with atomic_output(path) as tmp:
+            tmp.write_text(text)
+    return outputs
+
+
+def _cell(value) -> str:
+    if isinstance(value, (float, np.floating)):
+        if math.isnan(value):
+            return "–"
+        return f"{value:.4g}"
+    return str(value)
+
+
+def to_markdown(table: pd.DataFrame, caption: str = "") -> str:
+    header = "| " + " | ".join(map(str, table.columns)) + " |"
+    rule = "|" + "|".join("---" for _ in table.columns) + "|"
+    body = ["| " + " | ".join(_cell(v) for v in row) + " |" for row in table.itertuples(index=False)]
+    return "\n".join(([caption, ""] if caption else []) + [header, rule, *body]) + "\n"
+
+
+def to_latex(table: pd.DataFrame, caption: str = "") -> str:
+    def escape(text: str) -> str:
+        return text.replace("\\", r"\textbackslash{}").replace("_", r"\_").replace("%", r"\%").replace("&", r"\&")
+
+    columns = "l" * len(table.columns)
+    lines = [r"\begin{table}[t]", r"\centering"]
+    if caption:
+        lines.append(rf"\caption{{{escape(caption)}}}")
+    lines += [rf"\begin{{tabular}}{{{columns}}}", r"\toprule",
+              " & ".join(escape(str(c)) for c in table.columns) + r" \\", r"\midrule"]
+    lines += [" & ".join(escape(_cell(v)) for v in row) + r" \\" for row in table.itertuples(index=False)]
+    lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
+    return "\n".join(lines) + "\n"

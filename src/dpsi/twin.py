@@ -1,0 +1,322 @@
+"""Synthetic twin of the real clay dataset: raw datapoints with known ground-truth parameters.
+
+A twin lives in a raw dataset folder (docs/raw-format.md) and is made in two steps, so that a workflow
+can run one job per datapoint:
+
+1. :func:`write_twin_table` writes ``datapoints.csv`` (from a :data:`Plan`), ``dataset.yaml`` (table
+   height, workspace) and ``truth.json``: the ground-truth parameters of each material and the generator
+   settings (seed, simulator resolution, particle density).
+2. :func:`generate_datapoint` makes one datapoint ``<id>/``: a random lump (:mod:`dpsi.shapes`) near
+   :data:`CENTRE`, the planner trajectory with the tip starting at the lump's top centre
+   (``trajectory.csv``), the motion simulated with the truth parameters at a finer resolution than
+   identification uses, the final particles wrapped into a watertight surface, six noisy views with
+   calibration error of both states (``before/``, ``after/``), and the ground truth (``truth.npz``,
+   :func:`write_ground_truth`).
+
+Everything is deterministic from the seed: each datapoint draws its randomness from (seed, id), so it
+does not depend on which other datapoints are generated. Units: metres, seconds, SI parameters.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import shutil
+import zlib
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+import pandas as pd
+import yaml
+
+from dpsi.capture import capture
+from dpsi.datasets import EFFECTORS, LONG_MOTIONS, MOTION_A, MOTION_B
+from dpsi.effectors import by_name
+from dpsi.heightmap import height_map
+from dpsi.motions import get_motion, plan, resample, write_waypoints
+from dpsi.parameters import HAND_PICKED, Parameters
+from dpsi.pointclouds import atomic_output
+from dpsi.prepare import surface_points
+from dpsi.rawdata import ROLES, write_datapoints_table, write_views
+from dpsi.reconstruction.filling import fill, lattice_spacing, particles_to_mesh
+from dpsi.shapes import random_lump
+from dpsi.simulation import Scene, Simulator, SimulatorConfig
+
+CENTRE = (-0.52, 0.01)
+"""Where the lumps lie on the table (x, y in m, robot base frame), as in the published real data."""
+
+CENTRE_JITTER = 0.005
+"""Each lump's centre is moved by up to this much (m) in x and y."""
+
+TABLE_Z = 0.0
+WORKSPACE = ((-0.62, -0.09, -0.01), (-0.42, 0.11, 0.10))
+"""Workspace box (lo, hi) in m kept by fusion: the lump, anything a motion pushes, and table around it."""
+
+MATERIALS = {
+    "clay": HAND_PICKED,
+    "slime": Parameters(E=1.2e4, nu=0.45, rho=1050.0, yield_stress=1.2e3, mu_table=0.3, mu_effector=0.5),
+    "soil": Parameters(E=6e4, nu=0.3, rho=1600.0, yield_stress=3e3, mu_table=1.8, mu_effector=1.5),
+}
+"""Ground truth per material. Clay: the hand-picked literature values. Slime (cloud slime): softer
+(E 12 kPa), nearly incompressible (ν 0.45), light (1050 kg/m³), yielding early (1.2 kPa) and slippery on
+the table (0.3) but somewhat sticky on the effector (0.5). Soil (moist, compacted): stiffer (E 60 kPa),
+compressible (ν 0.3), dense (1600 kg/m³), stronger (3 kPa) and strongly frictional (table 1.8,
+effector 1.5)."""
+
+FINE_CONFIG = SimulatorConfig(dx=0.004, max_particles=22000)
+"""Simulator of the twin: 4 mm cells (identification uses 6 mm) and room for the largest lump."""
+
+FINE_DENSITY = 1.5e8
+"""Particles/m³ of the twin's simulation (1.9 mm apart; identification uses 4e7–8e7)."""
+
+TRUTH_FILE = "truth.json"
+GROUND_TRUTH_FILE = "truth.npz"
+
+
+@dataclass(frozen=True)
+class Group:
+    """``count`` datapoints of each motion × effector, all of one ``material``, ``level`` and ``role``.
+    ``effectors`` ``None`` means each motion's own effector (the long motions)."""
+
+    material: str
+    level: int
+    role: str
+    motions: tuple[str, ...]
+    effectors: tuple[str, ...] | None = None
+    count: int = 1
+
+    def __post_init__(self):
+        object.__setattr__(self, "motions", tuple(self.motions))
+        if self.effectors is not None:
+            object.__setattr__(self, "effectors", tuple(self.effectors))
+            for e in self.effectors:
+                by_name(e)
+        if self.role not in ROLES:
+            raise ValueError(f"group role must be one of {list(ROLES)}, not {self.role!r}")
+        if self.level not in (1, 2):
+            raise ValueError(f"group level must be 1 or 2, not {self.level!r}")
+        if not isinstance(self.count, int) or self.count < 0:
+            raise ValueError(f"group count must be a non-negative integer, not {self.count!r}")
+        for name in self.motions:
+            motion = get_motion(name)
+            if motion.level not in (None, self.level):
+                raise ValueError(f"motion {name} belongs to level {motion.level}, not {self.level}")
+            if self.effectors is None and motion.effector is None:
+                raise ValueError(f"motion {name} has no effector of its own: give the group's effectors")
+
+    def rows(self) -> list[dict]:
+        """Datapoints-table rows, ids ``<material>-<motion>-<effector>-<role>-<k>``."""
+        return [dict(id=f"{self.material}-{m}-{e}-{self.role}-{k}", motion=m, effector=e, level=self.level,
+                     role=self.role, material=self.material)
+                for m in self.motions for e in (self.effectors or (get_motion(m).effector,))
+                for k in range(self.count)]
+
+
+Plan = tuple[Group, ...]
+"""Which datapoints a twin has: a sequence of groups."""
+
+
+def default_plan(train: int = 2, validation: int = 2, ood: int = 2, levels=(1, 2),
+                 effectors=EFFECTORS, other_materials=("slime", "soil")) -> Plan:
+    """The SPEC §6 datapoints: per level ``train`` clay datapoints of each motion × effector and
+    ``validation`` of motion B per effector; ``ood`` of each long motion with its effector (level 2);
+    for each of ``other_materials`` one poking-shifting-2 datapoint with the cylinder and one
+    flattening datapoint to validate on."""
+    groups = []
+    for level in levels:
+        groups += [Group("clay", level, "train", (MOTION_A[level], MOTION_B[level]), effectors, train),
+                   Group("clay", level, "validation", (MOTION_B[level],), effectors, validation)]
+    groups.append(Group("clay", 2, "ood", LONG_MOTIONS, None, ood))
+    for material in other_materials:
+        groups += [Group(material, 2, "train", ("poking-shifting-2",), ("cylinder",), 1),
+                   Group(material, 2, "validation", ("flattening",), None, 1)]
+    return tuple(g for g in groups if g.count > 0)
+
+
+def plan_from_config(groups: list[dict]) -> Plan:
+    """A plan from a list of mappings with the fields of :class:`Group` (e.g. read from YAML)."""
+    try:
+        return tuple(Group(**g) for g in groups)
+    except TypeError as e:
+        raise ValueError(f"bad twin plan group ({e}); fields are material, level, role, motions, effectors, "
+                         "count") from None
+
+
+def plan_rows(plan: Plan) -> list[dict]:
+    """All datapoints-table rows of ``plan``; ``ValueError`` if two groups make the same id."""
+    rows = [row for group in plan for row in group.rows()]
+    ids = [r["id"] for r in rows]
+    dup = sorted({i for i in ids if ids.count(i) > 1})
+    if dup:
+        raise ValueError(f"twin plan makes duplicate datapoint id(s) {dup}; merge the groups")
+    if not rows:
+        raise ValueError("twin plan has no datapoints")
+    return rows
+
+
+def write_twin_table(root: str | os.PathLike, plan: Plan | None = None, seed: int = 0,
+                     materials: dict[str, Parameters] | None = None, config: SimulatorConfig = FINE_CONFIG,
+                     density: float = FINE_DENSITY) -> list[dict]:
+    """Write ``datapoints.csv``, ``dataset.yaml`` and ``truth.json`` of a twin under ``root`` (created).
+
+    ``plan`` defaults to :func:`default_plan`, ``materials`` (ground truth by name) to :data:`MATERIALS`;
+    ``config`` and ``density`` (particles/m³) set the twin's simulation. Returns the table rows."""
+    root = Path(root)
+    rows = plan_rows(default_plan() if plan is None else plan)
+    materials = MATERIALS if materials is None else materials
+    unknown = sorted({r["material"] for r in rows} - set(materials))
+    if unknown:
+        raise ValueError(f"no ground-truth parameters for material(s) {unknown}; known: {sorted(materials)}")
+    lattice_spacing(density)  # validates the density
+    root.mkdir(parents=True, exist_ok=True)
+    write_datapoints_table(root / "datapoints.csv", rows)
+    lo, hi = WORKSPACE
+    with atomic_output(root / "dataset.yaml") as tmp:
+        tmp.write_text(yaml.safe_dump({"table_z": TABLE_Z, "workspace": {"lo": list(lo), "hi": list(hi)}}))
+    truth = {"seed": int(seed), "density": float(density), "simulator": asdict(config),
+             "materials": {m: materials[m].as_dict() for m in sorted({r["material"] for r in rows})}}
+    with atomic_output(root / TRUTH_FILE) as tmp:
+        tmp.write_text(json.dumps(truth, indent=2))
+    return rows
+
+
+def read_truth(root: str | os.PathLike) -> tuple[dict[str, Parameters], int, SimulatorConfig, float]:
+    """Ground truth and generator settings of a twin: (parameters by material, seed, simulator config,
+    density in particles/m³), from ``root/truth.json``."""
+    path = Path(root) / TRUTH_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: twin truth file not found; run write_twin_table first")
+    try:
+        truth = json.loads(path.read_text())
+        materials = {m: Parameters.checked(**v) for m, v in truth["materials"].items()}
+        return materials, int(truth["seed"]), SimulatorConfig(**truth["simulator"]), float(truth["density"])
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
+        raise ValueError(f"{path}: not a twin truth file ({e})") from None
+
+
+@functools.cache
+def simulator(config: SimulatorConfig) -> Simulator:
+    """One simulator per configuration and process (compiling one takes seconds)."""
+    return Simulator(config)
+
+
+@dataclass
+class GroundTruth:
+    """What the twin knows about a datapoint: its ``material`` and ``parameters``, the simulated
+    particles before and after the motion ((n, 3), m, each of volume ``particle_volume`` m³), the table
+    height, and the height map (32 × 32, m) of the true after surface over the square centred at
+    ``centre_xy``, the middle of the before particles' footprint."""
+
+    id: str
+    material: str
+    parameters: Parameters
+    particle_volume: float
+    table_z: float
+    before_particles: np.ndarray
+    after_particles: np.ndarray
+    centre_xy: np.ndarray
+    heightmap: np.ndarray
+
+
+def write_ground_truth(path: str | os.PathLike, truth: GroundTruth) -> None:
+    """Write ``truth`` to ``path`` (.npz) atomically."""
+    meta = {"id": truth.id, "material": truth.material, "parameters": truth.parameters.as_dict(),
+            "particle_volume": truth.particle_volume, "table_z": truth.table_z}
+    with atomic_output(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, meta=json.dumps(meta), before_particles=truth.before_particles,
+                                after_particles=truth.after_particles, centre_xy=truth.centre_xy,
+                                heightmap=truth.heightmap)
+
+
+def load_ground_truth(path: str | os.PathLike) -> GroundTruth:
+    """Read a ground truth written by :func:`write_ground_truth`; errors name the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: twin ground-truth file not found")
+    try:
+        with np.load(path) as data:
+            meta = json.loads(str(data["meta"]))
+            meta["parameters"] = Parameters.checked(**meta["parameters"])
+            arrays = {k: np.asarray(data[k], float) for k in ("before_particles", "after_particles",
+                                                             "centre_xy", "heightmap")}
+    except (KeyError, ValueError, OSError) as e:
+        raise ValueError(f"{path}: not a twin ground-truth file ({e})") from None
+    return GroundTruth(**meta, **arrays)
+
+
+def _row(root: Path, datapoint_id: str) -> pd.Series:
+    path = root / "datapoints.csv"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: twin datapoints table not found; run write_twin_table first")
+    table = pd.read_csv(path, dtype=str, keep_default_na=False)
+    match = table[table["id"] == datapoint_id]
+    if match.empty:
+        raise KeyError(f"datapoint {datapoint_id!r} is not in {path}")
+    return match.iloc[0]
+
+
+def _table_clamped(mesh: o3d.geometry.TriangleMesh, table_z: float) -> o3d.geometry.TriangleMesh:
+    """``mesh`` with vertices below the table raised onto it (the wrap's offset reaches under the
+    lowest particles, which rest on the table)."""
+    v = np.asarray(mesh.vertices).copy()
+    v[:, 2] = np.maximum(v[:, 2], table_z)
+    mesh.vertices = o3d.utility.Vector3dVector(v)
+    return mesh
+
+
+def generate_datapoint(root: str | os.PathLike, datapoint_id: str) -> Path:
+    """Generate datapoint ``datapoint_id`` of the twin under ``root`` (whose table and truth.json
+    :func:`write_twin_table` wrote) and return its folder. The folder is built under a temporary name
+    and renamed at the end, so it is either complete or absent."""
+    root = Path(root)
+    row = _row(root, datapoint_id)
+    materials, seed, config, density = read_truth(root)
+    shape_seed, plan_seed, before_seed, after_seed, jitter_seed = np.random.SeedSequence(
+        [seed, zlib.crc32(datapoint_id.encode())]).generate_state(5)
+
+    offset = np.random.default_rng(jitter_seed).uniform(-CENTRE_JITTER, CENTRE_JITTER, 2)
+    before = random_lump(int(shape_seed), np.asarray(CENTRE) + offset, TABLE_Z)
+    lo, hi = before.get_min_bound(), before.get_max_bound()
+    waypoints = plan(get_motion(row.motion), int(plan_seed), start_xyz=[*(lo[:2] + hi[:2]) / 2, hi[2]])
+    particles = fill(before, density)
+    scene = Scene(particles, 1.0 / density, by_name(row.effector), resample(waypoints), waypoints.xyz[0], TABLE_Z)
+    final = simulator(config).forward(scene, materials[row.material])
+    after = _table_clamped(particles_to_mesh(final, lattice_spacing(density), name=datapoint_id), TABLE_Z)
+    centre_xy = scene.centre_xy
+    truth = GroundTruth(datapoint_id, row.material, materials[row.material], 1.0 / density, TABLE_Z,
+                        particles, final, centre_xy,
+                        height_map(surface_points(after), centre_xy, floor=TABLE_Z))
+
+    folder = root / datapoint_id
+    tmp = root / f".{datapoint_id}.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        tmp.mkdir()
+        write_waypoints(tmp / "trajectory.csv", waypoints)
+        write_views(tmp / "before", capture(before, TABLE_Z, seed=int(before_seed)))
+        write_views(tmp / "after", capture(after, TABLE_Z, seed=int(after_seed)))
+        write_ground_truth(tmp / GROUND_TRUTH_FILE, truth)
+        shutil.rmtree(folder, ignore_errors=True)
+        tmp.rename(folder)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return folder
+
+
+def generate_twin(root: str | os.PathLike, plan: Plan | None = None, seed: int = 0,
+                  materials: dict[str, Parameters] | None = None, config: SimulatorConfig = FINE_CONFIG,
+                  density: float = FINE_DENSITY) -> list[Path]:
+    """The whole twin in one process: :func:`write_twin_table`, then :func:`generate_datapoint` for each
+    row. Returns the datapoint folders."""
+    rows = write_twin_table(root, plan, seed, materials, config, density)
+    return [generate_datapoint(root, r["id"]) for r in rows]
+
+
+__all__ = ["CENTRE", "CENTRE_JITTER", "TABLE_Z", "WORKSPACE", "MATERIALS", "FINE_CONFIG", "FINE_DENSITY",
+           "TRUTH_FILE", "GROUND_TRUTH_FILE", "Group", "Plan", "default_plan", "plan_from_config", "plan_rows",
+           "write_twin_table", "read_truth", "simulator", "GroundTruth", "write_ground_truth",
+           "load_ground_truth", "generate_datapoint", "generate_twin"]

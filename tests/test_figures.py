@@ -1,0 +1,106 @@
+import matplotlib.image as mpimg
+import numpy as np
+import pandas as pd
+import pytest
+
+from dpsi.datapoint import Datapoint
+from dpsi.heightmap import height_map
+from dpsi.identification import COLUMNS
+from dpsi.motions import Trajectory
+from dpsi.parameters import LOWER, NAMES, UPPER
+from dpsi.reporting.figures import plot_heightmaps, plot_particles, plot_runs
+
+
+def synthetic_runs(levels=(1, 2), iterations=5) -> pd.DataFrame:
+    """2 losses × 2 datasets × 2 seeds per level, parameters in range, metrics decreasing, a few NaNs."""
+    rng = np.random.default_rng(0)
+    rows = []
+    for level in levels:
+        for loss in ("prt_emd", "pcd_cd"):
+            for dataset in ("12-mix", "1-round"):
+                for seed in (0, 1):
+                    for k in range(iterations):
+                        row = {c: rng.uniform(1.0, 10.0) for c in COLUMNS}
+                        row.update({n: rng.uniform(LOWER[n], UPPER[n]) for n in NAMES})
+                        row.update({"level": level, "loss": loss, "dataset": dataset, "seed": seed,
+                                    "iteration": k})
+                        row.update({c: 1000.0 / (k + 1) + rng.uniform(0, 50) for c in COLUMNS if c.startswith("val_")})
+                        rows.append(row)
+    runs = pd.DataFrame(rows)
+    runs.loc[runs.index[3::17], ["val_prt_emd", "E"]] = np.nan
+    return runs
+
+
+def block(nx=8, ny=8, nz=5, spacing=0.004, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Particles (m) on a grid standing on z = 0.01 around x = y = 0.4."""
+    grid = np.stack(np.meshgrid(*(np.arange(n) * spacing for n in (nx, ny, nz)), indexing="ij"), -1).reshape(-1, 3)
+    return grid - grid.mean(axis=0) * (1, 1, 0) + np.array([0.4, 0.4, 0.01]) + offset
+
+
+@pytest.fixture
+def datapoint() -> Datapoint:
+    before = block()
+    after = block(nz=3, offset=(0.01, 0.0, 0.0))
+    centre = np.array([0.4, 0.4])
+    return Datapoint(id="synthetic", motion="poking-2", effector="round", particles=before,
+                     particle_volume=0.004 ** 3, trajectory=Trajectory(np.zeros((3, 3)), np.zeros(3)),
+                     start=np.array([0.4, 0.4, 0.03]), table_z=0.01, pcd_target=after[::2], prt_target=after,
+                     heightmap=height_map(after, centre, floor=0.01), centre_xy=centre)
+
+
+def assert_figure(tmp_path, name, min_pixels=400):
+    png, pdf = tmp_path / f"{name}.png", tmp_path / f"{name}.pdf"
+    assert png.stat().st_size > 0 and pdf.stat().st_size > 0
+    image = mpimg.imread(png)
+    assert min(image.shape[:2]) >= min_pixels
+    assert image[..., :3].var() > 0
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary files left
+
+
+@pytest.mark.parametrize("level", [1, 2])
+def test_plot_runs_writes_png_and_pdf(tmp_path, level):
+    plot_runs(synthetic_runs(), level, tmp_path / "runs.png", tmp_path / "runs.pdf")
+    assert_figure(tmp_path, "runs")
+
+
+def test_plot_runs_single_iteration_and_dataset(tmp_path):
+    runs = synthetic_runs(levels=(1,), iterations=1)
+    plot_runs(runs[runs["dataset"] == "1-round"], 1, tmp_path / "one.png", tmp_path / "one.pdf")
+    assert_figure(tmp_path, "one")
+
+
+def test_plot_runs_rejects_bad_tables(tmp_path):
+    png, pdf = tmp_path / "r.png", tmp_path / "r.pdf"
+    runs = synthetic_runs()
+    with pytest.raises(ValueError, match="empty"):
+        plot_runs(runs.iloc[:0], 1, png, pdf)
+    with pytest.raises(ValueError, match="val_heightmap_mm"):
+        plot_runs(runs.drop(columns="val_heightmap_mm"), 1, png, pdf)
+    with pytest.raises(ValueError, match="mu_table"):
+        plot_runs(runs.drop(columns="mu_table"), 2, png, pdf)
+    with pytest.raises(ValueError, match="no rows of level 2"):
+        plot_runs(runs[runs["level"] == 1], 2, png, pdf)
+    with pytest.raises(ValueError, match="unknown level"):
+        plot_runs(runs, 3, png, pdf)
+    with pytest.raises(ValueError, match=r"\.pdf"):
+        plot_runs(runs, 1, png, tmp_path / "r.png")
+    assert not list(tmp_path.iterdir())
+
+
+def test_plot_heightmaps_writes_png_and_pdf(tmp_path, datapoint):
+    plot_heightmaps(datapoint, datapoint.particles, tmp_path / "hm.png", tmp_path / "hm.pdf", title="synthetic")
+    assert_figure(tmp_path, "hm")
+
+
+def test_plot_particles_writes_png_and_pdf(tmp_path, datapoint):
+    final = datapoint.prt_target + np.array([0.0, 0.002, 0.0])
+    plot_particles(datapoint, final, tmp_path / "prt.png", tmp_path / "prt.pdf", title="synthetic")
+    assert_figure(tmp_path, "prt")
+
+
+@pytest.mark.parametrize("plot", [plot_heightmaps, plot_particles])
+def test_outcome_plots_reject_bad_particles(tmp_path, datapoint, plot):
+    with pytest.raises(ValueError, match="final particles"):
+        plot(datapoint, np.zeros((4, 2)), tmp_path / "x.png", tmp_path / "x.pdf")
+    with pytest.raises(ValueError, match="NaN"):
+        plot(datapoint, np.full((4, 3), np.nan), tmp_path / "x.png", tmp_path / "x.pdf")

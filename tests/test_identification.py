@@ -1,0 +1,161 @@
+"""Identification on a tiny synthetic problem: 245-particle blocks poked for 15 steps on a coarse grid,
+with "after" targets simulated from known parameters."""
+
+import dataclasses
+import io
+import json
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from dpsi.datapoint import Datapoint
+from dpsi.heightmap import height_map
+from dpsi.identification import COLUMNS, LOG_FILE, STATE_FILE, IdentificationError, identify
+from dpsi.motions import Trajectory
+from dpsi.parameters import HAND_PICKED, LEVEL1_FIXED, Parameters
+from dpsi.reconstruction.filling import pcd_target
+from dpsi.simulation import SimulationError, Simulator, SimulatorConfig
+
+SPACING = 0.004
+CONFIG = SimulatorConfig(dx=0.006, width=0.08, height=0.05, max_particles=1000, max_steps=40)
+TRUTH = HAND_PICKED.replace(E=5e4, yield_stress=3e3, **LEVEL1_FIXED)
+
+
+def block() -> np.ndarray:
+    """A 2.8 × 2.8 × 2 cm block of particles on the table z = 0."""
+    xy = np.arange(-0.012, 0.0121, SPACING)
+    z = np.arange(SPACING / 2, 0.02, SPACING)
+    return np.stack(np.meshgrid(xy, xy, z, indexing="ij"), -1).reshape(-1, 3)
+
+
+def poke(depth: float) -> Trajectory:
+    """Down by ``depth`` m in 10 steps, then back up by half of it in 5."""
+    z = np.concatenate([np.linspace(0.0, -depth, 11), -depth + np.linspace(0.0, depth / 2, 6)[1:]])
+    return Trajectory(np.column_stack([np.zeros((len(z), 2)), z]), np.zeros(len(z)))
+
+
+def synthetic(simulator: Simulator, effector: str, depth: float) -> Datapoint:
+    """A datapoint whose targets come from simulating the block with :data:`TRUTH`."""
+    particles = block()
+    centre = particles[:, :2].mean(axis=0)
+    start = [*centre, particles[:, 2].max() + SPACING / 2]
+    dp = Datapoint(effector, "poke", effector, particles, SPACING**3, poke(depth), np.array(start), 0.0,
+                   particles, particles, np.zeros((32, 32)), centre)
+    after = simulator.forward(dp.scene(), TRUTH)
+    dp.prt_target, dp.pcd_target, dp.heightmap = after, pcd_target(after), height_map(after, centre)
+    return dp
+
+
+@pytest.fixture(scope="module")
+def simulator():
+    return Simulator(CONFIG)
+
+
+@pytest.fixture(scope="module")
+def problem(simulator):
+    """(training, validation) datapoints."""
+    return ([synthetic(simulator, "round", 0.008), synthetic(simulator, "rectangle", 0.008)],
+            [synthetic(simulator, "cylinder", 0.006)])
+
+
+def test_recovers_young_modulus_and_yield_stress(simulator, problem, tmp_path):
+    start = TRUTH.replace(E=2e4, yield_stress=8e3)
+    summary = identify(tmp_path, 1, "prt_cd", *problem, iterations=30, initial=start, truth=TRUTH,
+                       simulator=simulator, progress=io.StringIO())
+    log = pd.read_csv(tmp_path / LOG_FILE)
+    assert list(log.columns) == list(COLUMNS) and list(log.iteration) == list(range(31))
+    assert (log.skipped == 0).all() and (log.mu_table == LEVEL1_FIXED["mu_table"]).all()
+    assert log.train_loss_mm.iloc[-5:].min() < 0.25 * log.train_loss_mm.iloc[0]
+    for name in ("E", "yield_stress"):
+        initial_error = abs(getattr(start, name) - getattr(TRUTH, name))
+        assert abs(log[name].iloc[-1] - getattr(TRUTH, name)) < 0.5 * initial_error, name
+        assert summary["relative_error"][name] < 0.6 * initial_error / getattr(TRUTH, name), name
+    best = log.loc[log.iteration >= 1, "val_heightmap_mm"].idxmin()
+    assert summary["best"]["iteration"] == best
+    assert summary["best"]["parameters"]["E"] == log.E[best]
+
+
+class Interrupt(io.StringIO):
+    """A progress stream that raises KeyboardInterrupt on its ``after``-th line, i.e. right after a row
+    has been saved."""
+
+    def __init__(self, after: int):
+        super().__init__()
+        self.after = after
+
+    def write(self, text):
+        self.after -= 1
+        if self.after == 0:
+            raise KeyboardInterrupt
+        return super().write(text)
+
+
+def _without_wall_time(folder):
+    return [{k: v for k, v in row.items() if k != "wall_s"}
+            for row in json.loads((folder / STATE_FILE).read_text())["log"]]
+
+
+def test_resumed_run_equals_uninterrupted_run(simulator, problem, tmp_path):
+    run = dict(level=2, loss="prt_emd", training=problem[0], validation_set=problem[1], seed=3,
+               simulator=simulator, progress=io.StringIO())
+    whole = identify(tmp_path / "whole", iterations=4, **run)
+
+    identify(tmp_path / "parts", iterations=2, **run)  # a shorter run, then extended
+    with pytest.raises(KeyboardInterrupt):  # killed after row 3 is saved
+        identify(tmp_path / "parts", iterations=4, **{**run, "progress": Interrupt(after=1)})
+    assert len(_without_wall_time(tmp_path / "parts")) == 4
+    parts = identify(tmp_path / "parts", iterations=4, **run)
+
+    assert parts["final"] == whole["final"] and parts["best"] == whole["best"]
+    assert _without_wall_time(tmp_path / "parts") == _without_wall_time(tmp_path / "whole")
+    assert whole["final"]["iteration"] == 4 and whole["initial"]["E"] != whole["final"]["parameters"]["E"]
+
+    with pytest.raises(IdentificationError, match=r"different run.*\['loss'\]"):
+        identify(tmp_path / "parts", iterations=4, **{**run, "loss": "prt_cd"})
+    with pytest.raises(IdentificationError, match="already has 4 iterations"):
+        identify(tmp_path / "parts", iterations=3, **run)
+
+
+def _failing(*args):
+    raise SimulationError("unstable")
+
+
+def test_all_skipped_stops_early(problem, tmp_path):
+    broken = SimpleNamespace(config=CONFIG, forward=_failing, backward=_failing)
+    summary = identify(tmp_path, 1, "prt_cd", *problem, iterations=5, simulator=broken, progress=io.StringIO())
+    log = pd.read_csv(tmp_path / LOG_FILE)
+    assert list(log.skipped) == [2] and list(log.val_skipped) == [1] and math.isnan(log.train_loss_mm[0])
+    assert summary["completed_iterations"] == 0 and "every training datapoint was skipped" in summary["stopped_early"]
+    assert summary["best"] is None
+
+
+OUT_OF_RANGE = Parameters(E=1e6, nu=0.4, rho=1330.0, yield_stress=1e3, mu_table=0.7, mu_effector=0.7)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"loss": "l2"}, "unknown loss 'l2'"),
+    ({"training": []}, "training dataset is empty"),
+    ({"validation_set": []}, "validation dataset is empty"),
+    ({"level": 3}, "level must be one of"),
+    ({"iterations": 0}, "iterations must be a positive integer"),
+    ({"seed": -1}, "seed must be"),
+    ({"initial": OUT_OF_RANGE}, "initial value: parameter E=1000000.0"),
+    ({"simulator": SimpleNamespace(config=SimulatorConfig(max_particles=100), forward=_failing)},
+     "training datapoint 'round' has 245 particles, more than the simulator's max_particles=100"),
+])
+def test_bad_arguments_fail_before_any_simulation(problem, tmp_path, change, message):
+    untouchable = SimpleNamespace(config=CONFIG, forward=_failing, backward=_failing)
+    args = {**dict(out_dir=tmp_path / "run", level=1, loss="prt_cd", training=problem[0],
+                   validation_set=problem[1], simulator=untouchable), **change}
+    with pytest.raises(IdentificationError, match=message.replace("(", r"\(")):
+        identify(**args)
+    assert not (tmp_path / "run").exists()
+
+
+def test_oversized_earth_movers_target_is_named(problem, tmp_path):
+    too_big = dataclasses.replace(problem[1][0], prt_target=np.zeros((300, 3)))
+    with pytest.raises(IdentificationError, match="validation datapoint 'cylinder': prt_target has 300 points"):
+        identify(tmp_path, 1, "prt_cd", problem[0], [too_big], simulator=SimpleNamespace(config=CONFIG))

@@ -1,0 +1,121 @@
+"""Raw datapoint → prepared Datapoint (SPEC §3): states given as views, fused clouds or meshes enter the
+reconstruction at the matching stage. Known lumps stand in for the before and after objects."""
+
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial import cKDTree
+
+from dpsi.capture import capture
+from dpsi.datapoint import load_datapoint, save_datapoint
+from dpsi.heightmap import CELLS, height_map
+from dpsi.motions import MOTIONS, plan, write_waypoints
+from dpsi.pointclouds import read_mesh, write_mesh, write_points
+from dpsi.prepare import (build_datapoint, fill_particles, footprint_centre, fuse_state, prepare_datapoint,
+                          reconstruct_state, surface_points, targets, trajectory_and_start)
+from dpsi.rawdata import load_raw_dataset, write_datapoints_table, write_views
+from dpsi.reconstruction.filling import fill, pcd_target, prt_target
+from dpsi.reconstruction.meshing import mesh_volume
+from dpsi.shapes import lump
+
+CENTRE = (-0.52, 0.01)
+WORKSPACE = ((-0.62, -0.09, -0.01), (-0.42, 0.11, 0.10))
+DENSITY = 6e7
+BEFORE = lump((0.03, 0.025), wall=0.012, top=0.03, centre=CENTRE)
+PRESSED = lump((0.032, 0.026), wall=0.012, top=0.022, centre=CENTRE)  # smaller volume than BEFORE
+SPREAD = lump((0.036, 0.03), wall=0.015, top=0.026, centre=CENTRE)  # larger volume than BEFORE
+START = (*CENTRE, 0.03)
+
+
+@pytest.fixture(scope="module")
+def raw(tmp_path_factory):
+    root = tmp_path_factory.mktemp("prepare") / "raw"
+    root.mkdir()
+    (root / "dataset.yaml").write_text(yaml.safe_dump(
+        {"table_z": 0.0, "workspace": {"lo": list(WORKSPACE[0]), "hi": list(WORKSPACE[1])}}))
+    write_datapoints_table(root / "datapoints.csv", [
+        dict(id="views", motion="poking-1", effector="round", level=1, role="train", material="clay"),
+        dict(id="meshes", motion="poking-2", effector="rectangle", level=1, role="validation", material="clay"),
+        dict(id="mixed", motion="poking-1", effector="cylinder", level=1, role="train", material="clay")])
+    (root / "trajectories").mkdir()
+    for name in ("poking-1", "poking-2"):
+        write_waypoints(root / "trajectories" / f"{name}.csv", plan(MOTIONS[name], seed=1, start_xyz=START))
+    write_views(root / "views" / "before", capture(BEFORE, seed=1))
+    write_views(root / "views" / "after", capture(PRESSED, seed=2))
+    for folder in ("meshes", "mixed"):
+        (root / folder).mkdir()
+    write_mesh(root / "meshes" / "before_mesh.obj", BEFORE)
+    write_mesh(root / "meshes" / "after_mesh.ply", SPREAD)
+    write_mesh(root / "mixed" / "before_mesh.obj", BEFORE)
+    write_points(root / "mixed" / "after_fused.npy", surface_points(PRESSED))
+    return load_raw_dataset(root)
+
+
+@pytest.fixture(scope="module")
+def from_views(raw):
+    return prepare_datapoint(raw, "views", DENSITY)
+
+
+def test_views_become_a_datapoint(from_views, tmp_path):
+    dp = from_views
+    assert (dp.id, dp.motion, dp.effector) == ("views", "poking-1", "round")
+    assert len(dp.particles) == pytest.approx(DENSITY * mesh_volume(BEFORE), rel=0.12)
+    assert dp.particle_volume == pytest.approx(1 / DENSITY)
+    assert 0 < len(dp.prt_target) <= len(dp.particles)
+    assert len(dp.prt_target) == pytest.approx(DENSITY * mesh_volume(PRESSED), rel=0.15)
+    assert 0.05 * len(dp.particles) < len(dp.pcd_target) < 0.4 * len(dp.particles)
+    np.testing.assert_allclose(dp.centre_xy, CENTRE, atol=0.003)
+    assert dp.heightmap.shape == (CELLS, CELLS)
+    assert dp.heightmap.max() == pytest.approx(0.022, abs=0.002)  # the pressed top, not the before one
+    assert dp.heightmap[0, 0] == 0.0  # empty cells hold the table height
+    np.testing.assert_allclose(dp.start, START, atol=1e-12)
+    assert dp.trajectory.n_steps == MOTIONS["poking-1"].sim_steps
+    assert dp.table_z == 0.0
+    save_datapoint(tmp_path / "views.npz", dp)
+    again = load_datapoint(tmp_path / "views.npz")
+    np.testing.assert_array_equal(again.particles, dp.particles)
+    np.testing.assert_array_equal(again.heightmap, dp.heightmap)
+
+
+def test_meshes_enter_at_filling_and_prt_target_fits(raw):
+    dp = prepare_datapoint(raw, "meshes", DENSITY)
+    before = read_mesh(raw.root / "meshes" / "before_mesh.obj")
+    np.testing.assert_array_equal(dp.particles, fill(before, DENSITY))  # no fusion or meshing on the way
+    after = read_mesh(raw.root / "meshes" / "after_mesh.ply")
+    assert len(fill(after, DENSITY)) > len(dp.particles)  # the after mesh holds more at this density ...
+    assert len(dp.prt_target) <= len(dp.particles)  # ... so the PRT target was thinned to fit
+    np.testing.assert_array_equal(dp.prt_target, prt_target(after, DENSITY, len(dp.particles))[0])
+    assert dp.heightmap.max() == pytest.approx(0.026, abs=0.0005)  # from points sampled on the mesh
+    points = surface_points(after)
+    np.testing.assert_array_equal(dp.heightmap, height_map(points, footprint_centre(dp.particles)))
+    assert np.abs(np.asarray(after.get_min_bound()) - points.min(axis=0)).max() < 0.002
+
+
+def test_stages_alone_match_the_composition(raw, from_views):
+    views_dp, mixed = raw.datapoints[0], raw.datapoints[2]
+    points, mesh = reconstruct_state(views_dp.before, raw.workspace, raw.table_z, "views before")
+    fused = fuse_state(views_dp.before.load(), raw.workspace, raw.table_z)
+    assert len(points) == pytest.approx(len(fused), rel=0.01)  # (threaded ICP may change the last digits)
+    assert np.percentile(cKDTree(fused).query(points)[0], 99) < 1e-6
+    assert len(fill_particles(mesh, DENSITY)) == pytest.approx(len(from_views.particles), rel=0.01)
+
+    after_points, after_mesh = reconstruct_state(mixed.after, raw.workspace, raw.table_z, "mixed after")
+    np.testing.assert_array_equal(after_points, mixed.after.load())  # a fused cloud is used as it is
+    dp = build_datapoint(mixed, BEFORE, after_mesh, after_points, DENSITY, raw.table_z)
+    prt, pcd, hm = targets(after_mesh, after_points, len(dp.particles), DENSITY, dp.centre_xy, 0.0)
+    np.testing.assert_array_equal(dp.pcd_target, pcd_target(after_points))
+    np.testing.assert_array_equal(dp.heightmap, hm)
+    trajectory, start = trajectory_and_start(mixed.trajectory)
+    np.testing.assert_array_equal(dp.trajectory.positions, trajectory.positions)
+    np.testing.assert_allclose(start, START, atol=1e-12)
+
+
+def test_errors_name_the_datapoint(raw):
+    with pytest.raises(ValueError, match="views before: fusing camera views needs a workspace"):
+        fuse_state(raw.datapoints[0].before.load(), None, 0.0, "views before")
+    with pytest.raises(ValueError, match="views before: fusion: view 0 shows no table"):
+        fuse_state(raw.datapoints[0].before.load(), raw.workspace, 0.05, "views before")
+    with pytest.raises(KeyError, match="'nowhere' is not in the raw dataset"):
+        prepare_datapoint(raw, "nowhere", DENSITY)
+    with pytest.raises(ValueError, match="tiny: no particles fit"):
+        fill_particles(lump((0.001, 0.001), wall=0.0005, top=0.001, centre=CENTRE), DENSITY, "tiny")

@@ -1,0 +1,98 @@
+"""Configuration, the datapoints table and helpers shared by every rule file."""
+
+import re
+from pathlib import Path
+
+import pandas as pd
+from snakemake.exceptions import WorkflowError
+from snakemake.utils import validate
+
+from dpsi import datasets as dpsi_datasets
+from dpsi import twin as dpsi_twin
+
+
+validate(config, "../schemas/config.schema.yaml")
+
+RAW = f"raw/{config['dataset']}"
+RESULTS = f"results/{config['dataset']}"
+LIBRARY = Path(workflow.basedir).parent / "src" / "dpsi"
+
+
+def library(*modules):
+    """Source files of the dpsi modules a rule uses (names relative to src/dpsi, without .py; a package
+    stands for all its files). Declared as inputs so that a change of the library code makes the
+    rule's outputs out of date, as a change of its script does."""
+    files = []
+    for module in modules:
+        path = LIBRARY / module
+        files += sorted(path.glob("*.py")) if path.is_dir() else [path.with_suffix(".py")]
+    return [str(f) for f in files]
+
+
+def datapoints_table():
+    """The datapoints table: planned by the twin config, or read from the raw dataset."""
+    if "twin" in config:
+        plan = dpsi_twin.plan_from_config(config["twin"]["groups"])
+        return pd.DataFrame(dpsi_twin.plan_rows(plan))
+    path = Path(RAW) / "datapoints.csv"
+    if not path.is_file():
+        raise WorkflowError(f"{path} not found: put a raw dataset there (docs/raw-format.md) or give a `twin` "
+                            "section in the config")
+    return pd.read_csv(path, dtype=str)
+
+
+TABLE = datapoints_table()
+IDS = list(TABLE["id"])
+IDENT = config["identification"]
+
+
+def training_ids(level, dataset):
+    return dpsi_datasets.select(TABLE, int(level), dataset)
+
+
+def validation_ids(level):
+    return dpsi_datasets.validation(TABLE, int(level))
+
+
+def ood_ids():
+    return dpsi_datasets.ood(TABLE)
+
+
+def prepared(ids):
+    return [f"{RESULTS}/prepared/{i}.npz" for i in ids]
+
+
+def runs(level=None):
+    """Summary files of every identification run (of one level if given)."""
+    return expand(f"{RESULTS}/runs/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}/summary.json",
+                  level=[level] if level else IDENT["levels"], loss=IDENT["losses"], dataset=IDENT["datasets"],
+                  seed=IDENT["seeds"])
+
+
+def simulator_params():
+    return {**config.get("simulator", {}), "arch": config.get("taichi_arch", "cpu")}
+
+
+def for_each_run():
+    """Fail at start-up, naming the datapoints, if a configured dataset cannot be formed."""
+    for level in IDENT["levels"]:
+        validation_ids(level)
+        for dataset in IDENT["datasets"]:
+            training_ids(level, dataset)
+    if 2 in IDENT["levels"]:
+        ood_ids()
+
+
+try:
+    for_each_run()
+except ValueError as err:
+    raise WorkflowError(f"the configuration asks for a dataset the datapoints cannot form: {err}")
+
+
+wildcard_constraints:
+    id="|".join(map(re.escape, IDS)),
+    state="before|after",
+    level="1|2",
+    seed=r"\d+",
+    loss="[a-z_]+",
+    dataset="[0-9a-z-]+",

@@ -1,0 +1,45 @@
+"""Out-of-distribution generalisation (SPEC §7.3): the long motions simulated with the best level-2
+parameters of each (loss, dataset), and with the hand-picked ones."""
+
+
+rule ood_identified:
+    output:
+        records=f"{RESULTS}/ood/{{loss}}/{{dataset}}.json",
+        particles=f"{RESULTS}/ood/{{loss}}/{{dataset}}.npz",
+    input:
+        summaries=expand(f"{RESULTS}/runs/L2/{{{{loss}}}}/{{{{dataset}}}}/seed{{seed}}/summary.json",
+                         seed=IDENT["seeds"]),
+        datapoints=prepared(ood_ids()) if 2 in IDENT["levels"] else [],
+        code=library("identification", "simulation", "losses", "parameters", "datapoint"),
+    params:
+        simulator=simulator_params(),
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=120,
+        gpu=1 if config.get("taichi_arch") == "cuda" else 0,
+    log:
+        f"logs/{config['dataset']}/ood/{{loss}}_{{dataset}}.log",
+    script:
+        "../scripts/ood.py"
+
+
+rule ood_hand_picked:
+    output:
+        records=f"{RESULTS}/ood/hand-picked.json",
+        particles=f"{RESULTS}/ood/hand-picked.npz",
+    input:
+        summaries=[],
+        datapoints=prepared(ood_ids()) if 2 in IDENT["levels"] else [],
+        code=library("identification", "simulation", "losses", "parameters", "datapoint"),
+    params:
+        simulator=simulator_params(),
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=120,
+        gpu=1 if config.get("taichi_arch") == "cuda" else 0,
+    log:
+        f"logs/{config['dataset']}/ood/hand-picked.log",
+    script:
+        "../scripts/ood.py"

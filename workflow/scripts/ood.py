@@ -1,0 +1,39 @@
+"""Out-of-distribution motions simulated with the best level-2 parameters of one (loss, dataset) across
+seeds, or with the hand-picked parameters when the rule gives no run summaries."""
+
+import json
+
+import numpy as np
+
+from dpsi.datapoint import load_datapoint
+from dpsi.losses import validation_metrics
+from dpsi.parameters import HAND_PICKED, Parameters
+from dpsi.pointclouds import atomic_output
+from dpsi.provenance import recorded
+from dpsi.reporting.tables import HAND_PICKED_LABEL
+from dpsi.simulation import Simulator, SimulatorConfig
+
+with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]) as log:
+    summaries = [json.loads(open(f).read()) for f in snakemake.input.summaries]
+    bests = [s["best"] for s in summaries if s.get("best")]
+    if snakemake.input.summaries and not bests:
+        raise RuntimeError(f"no run of {snakemake.input.summaries} has a best iteration")
+    if bests:
+        best = min(bests, key=lambda b: b["validation"]["heightmap_mm"])
+        params, loss, dataset = Parameters.checked(**best["parameters"]), snakemake.wildcards.loss, snakemake.wildcards.dataset
+    else:
+        params, loss, dataset = HAND_PICKED, HAND_PICKED_LABEL, ""
+    simulator = Simulator(SimulatorConfig(**snakemake.params.simulator))
+    records, finals = [], {}
+    for path in snakemake.input.datapoints:
+        dp = load_datapoint(path)
+        final = simulator.forward(dp.scene(), params)
+        metrics = validation_metrics(final, dp.pcd_target, dp.prt_target, dp.heightmap, dp.centre_xy)
+        records.append({"motion": dp.motion, "config": dp.id, "loss": loss, "dataset": dataset,
+                        "parameters": params.as_dict(), **metrics})
+        finals[dp.id] = final
+        log.info("%s: height-map distance %.1f mm", dp.id, metrics["heightmap_mm"])
+    with atomic_output(snakemake.output.records) as tmp:
+        tmp.write_text(json.dumps(records, indent=1))
+    with atomic_output(snakemake.output.particles) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **finals)

@@ -1,0 +1,24 @@
+"""The paper's tables from the run summaries, the hand-picked baseline and the OOD evaluations."""
+
+import json
+from pathlib import Path
+
+from dpsi.provenance import recorded
+from dpsi.reporting import tables
+
+with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
+    summaries = []
+    for path in map(Path, snakemake.input.summaries):  # .../runs/L<level>/<loss>/<dataset>/seed<seed>/summary.json
+        summaries.append({**json.loads(path.read_text()), "dataset": path.parts[-3]})
+    hand_picked = {int(Path(f).parent.name[1:]): json.loads(Path(f).read_text())["validation"]["heightmap_mm"]
+                   for f in snakemake.input.hand_picked}
+    ood = [record for f in snakemake.input.ood for record in json.loads(Path(f).read_text())]
+    out = Path(snakemake.output[0]).parent
+    tables.write_table(tables.motions_table(), out / "motions.csv", "Motions (SPEC §2)")
+    tables.write_table(tables.parameters_table(), out / "parameters.csv", "Parameter ranges and Adam step sizes")
+    tables.write_table(tables.best_params_table(summaries, hand_picked), out / "best_params.csv",
+                       "Parameters at the lowest validation height-map distance (mm)")
+    tables.write_table(tables.ood_table(ood), out / "ood_heightmap.csv",
+                       "Out-of-distribution height-map distance (mm)")
+    tables.write_table(tables.recovery_table(summaries), out / "recovery_error.csv",
+                       "Relative error of recovered parameters against the twin's ground truth")
