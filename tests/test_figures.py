@@ -24,7 +24,8 @@ def synthetic_runs(levels=(1, 2), iterations=5) -> pd.DataFrame:
                         row.update({n: rng.uniform(LOWER[n], UPPER[n]) for n in NAMES})
                         row.update({"level": level, "loss": loss, "dataset": dataset, "seed": seed,
                                     "iteration": k})
-                        row.update({c: 1000.0 / (k + 1) + rng.uniform(0, 50) for c in COLUMNS if c.startswith("val_")})
+                        row.update({c: 1000.0 / (k + 1) + rng.uniform(0, 50)
+                                    for c in COLUMNS if c.startswith("val_")})
                         rows.append(row)
     runs = pd.DataFrame(rows)
     runs.loc[runs.index[3::17], ["val_prt_emd", "E"]] = np.nan

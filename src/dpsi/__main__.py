@@ -83,6 +83,19 @@ def _positive(text: str) -> float:
     return value
 
 
+def _at_least(minimum: int):
+    """An argparse type: an integer ≥ ``minimum``."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = minimum - 1
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be an integer ≥ {minimum}, got {text!r}")
+        return value
+    return parse
+
+
 def _shape_options(parser: argparse.ArgumentParser, many: bool) -> None:
     each = " (repeat once per datapoint; a single --motion/--effector applies to all)" if many else ""
     action = "append" if many else "store"
@@ -131,8 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--loss", required=True, choices=list(LOSSES), help="training loss")
     ident.add_argument("--level", type=int, default=1, choices=sorted(IDENTIFIED),
                        help="1: identify E, nu, rho, yield_stress (frictions fixed); 2: all six (default 1)")
-    ident.add_argument("--seed", type=int, default=0, help="seed of the random initial values (default 0)")
-    ident.add_argument("--iterations", type=int, default=100, help="Adam updates (default 100)")
+    ident.add_argument("--seed", type=_at_least(0), default=0, help="seed of the random initial values (default 0)")
+    ident.add_argument("--iterations", type=_at_least(1), default=100, help="Adam updates (default 100)")
     ident.add_argument("--initial", choices=["random", "hand-picked"], default="random",
                        help="initial values: uniform random from --seed, or the hand-picked ones (default random)")
     ident.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
@@ -168,10 +181,6 @@ def _simulate(args) -> list[str]:
 def _identify(parser, args) -> list[str]:
     if len(args.after) != len(args.before):
         parser.error(f"argument --after: give one per --before ({len(args.before)}), got {len(args.after)}")
-    if args.iterations < 1:
-        parser.error(f"argument --iterations: must be at least 1, got {args.iterations}")
-    if args.seed < 0:
-        parser.error(f"argument --seed: must be non-negative, got {args.seed}")
     base = HAND_PICKED if args.initial == "hand-picked" else random_initial(args.seed, args.level)
     initial = _params(parser, base, args.param)
     pairs = zip(args.before, args.after, _one_each(parser, args, "motion"), _one_each(parser, args, "effector"))
@@ -182,8 +191,9 @@ def _identify(parser, args) -> list[str]:
     best = summary["best"]
     head = ("no iteration has a finite validation height-map distance; final parameters:" if best is None else
             f"best iteration {best['iteration']} (validation height map {best['validation']['heightmap_mm']:.1f} mm):")
-    return ([head] + [f"{name}: {value:g} {UNITS[name]}" for name, value in (best or summary["final"])["parameters"].items()]
-            + [f"saved in {Path(args.out) / 'summary.json'}"])
+    values = (best or summary["final"])["parameters"]
+    return [head, *(f"{name}: {value:g} {UNITS[name]}" for name, value in values.items()),
+            f"saved in {Path(args.out) / 'summary.json'}"]
 
 
 def main(argv: list[str] | None = None) -> int:

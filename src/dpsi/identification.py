@@ -57,14 +57,14 @@ class IdentificationError(ValueError):
 
 def targets(dp: Datapoint) -> Targets:
     """The loss targets of a datapoint."""
-    return Targets(pcd=dp.pcd_target, prt=dp.prt_target, heightmap=HeightMapTarget(dp.heightmap, dp.centre_xy))
+    return Targets(pcd=dp.pcd_target, prt=dp.prt_target, heightmap=HeightMapTarget(dp.heightmap, dp.centre_xy, dp.table_z))
 
 
 def evaluate(simulator: Simulator, dp: Datapoint, params: Parameters) -> dict[str, float]:
     """Simulate ``dp`` with ``params`` and return its five validation metrics (mm); raises
     :class:`SimulationError` if the simulation fails."""
     final = simulator.forward(dp.scene(), params)
-    return validation_metrics(final, dp.pcd_target, dp.prt_target, dp.heightmap, dp.centre_xy)
+    return validation_metrics(final, dp.pcd_target, dp.prt_target, dp.heightmap, dp.centre_xy, dp.table_z)
 
 
 def _nan_gradient() -> dict[str, float]:
@@ -90,7 +90,8 @@ def training_gradient(simulator: Simulator, training: Sequence[Datapoint], param
     return (float(np.mean(kept)) if kept else math.nan), screened.gradient, screened.skipped
 
 
-def validation(simulator: Simulator, datapoints: Sequence[Datapoint], params: Parameters) -> tuple[dict[str, float], int]:
+def validation(simulator: Simulator, datapoints: Sequence[Datapoint],
+               params: Parameters) -> tuple[dict[str, float], int]:
     """The five metrics (mm) averaged over the datapoints whose simulation succeeds (NaN if none does),
     and the number that failed."""
     rows = []
@@ -164,7 +165,8 @@ def _load_state(path: Path, fingerprint: dict) -> dict | None:
         stored = state["run"]
         state["adam"], state["log"]
     except (ValueError, KeyError, TypeError) as err:
-        raise IdentificationError(f"{path} is not a readable identification state ({err}); delete it to restart") from None
+        raise IdentificationError(f"{path} is not a readable identification state ({err}); "
+                                  "delete it to restart") from None
     if state.get("version") != STATE_VERSION:
         raise IdentificationError(f"{path} has state version {state.get('version')}, expected {STATE_VERSION}")
     differ = sorted(k for k in fingerprint if stored.get(k) != fingerprint[k])
@@ -248,18 +250,27 @@ class Progress:
 def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Datapoint],
              validation_set: Sequence[Datapoint], seed: int = 0, iterations: int = 100,
              initial: Parameters | None = None, truth: Parameters | None = None,
-             simulator: Simulator | None = None, progress: TextIO | None = None) -> dict:
+             simulator: Simulator | None = None, progress: TextIO | None = None,
+             restart_if_different: bool = False) -> dict:
     """Run (or resume) an identification into ``out_dir`` and return its summary (see module doc).
 
-    ``initial``: the starting θ (default random from ``seed`` in the level's ranges); ``truth``: known
+    ``initial``: the starting θ (default random from ``seed`` in the level's ranges; at level 1 its frictions
+    are replaced by :data:`~dpsi.parameters.LEVEL1_FIXED`); ``truth``: known
     parameters for the relative errors; ``simulator``: the process's simulator (default: one with
-    :class:`SimulatorConfig` defaults); ``progress``: stream for progress messages (default stderr).
+    :class:`SimulatorConfig` defaults); ``progress``: stream for progress messages (default stderr);
+    ``restart_if_different``: discard a state file left by a different run (other datapoints, seed or
+    initial values) instead of refusing to continue it.
     """
     config = simulator.config if simulator is not None else SimulatorConfig()
     initial = check_run(level, loss, training, validation_set, seed, iterations, initial, config)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     fingerprint = _fingerprint(level, loss, seed, initial, training, validation_set)
+    if restart_if_different and (out_dir / STATE_FILE).exists():
+        try:
+            _load_state(out_dir / STATE_FILE, fingerprint)
+        except IdentificationError:
+            (out_dir / STATE_FILE).unlink()
     state = _load_state(out_dir / STATE_FILE, fingerprint)
     adam = Adam.from_state(state["adam"]) if state else Adam.for_level(initial, level)
     rows: list[dict] = state["log"] if state else []
@@ -288,7 +299,7 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
         pd.DataFrame(rows, columns=list(COLUMNS)).to_csv(tmp, index=False)
     summary = summarise(rows, fingerprint, iterations, truth)
     with atomic_output(out_dir / SUMMARY_FILE) as tmp:
-        tmp.write_text(json.dumps(summary, indent=2, allow_nan=True) + "\n")
+        tmp.write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
 

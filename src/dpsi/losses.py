@@ -91,11 +91,12 @@ def earth_movers(sim, target) -> LossResult:
 
 
 class HeightMapTarget(NamedTuple):
-    """A real height map (cells, cells) in m over the default 0.11 m square, and the square's
-    centre (2,) in m (SPEC §3.5)."""
+    """A real height map (cells, cells) in m over the default 0.11 m square, the square's centre
+    (2,) in m (SPEC §3.5), and the height (m) of cells no point falls in: the table."""
 
     heights: np.ndarray
     centre_xy: np.ndarray
+    floor: float = 0.0
 
 
 def heightmap_loss(sim, target: HeightMapTarget) -> LossResult:
@@ -108,7 +109,8 @@ def heightmap_loss(sim, target: HeightMapTarget) -> LossResult:
     if heights.ndim != 2 or heights.shape[0] != heights.shape[1]:
         raise ValueError(f"target height map must be square (cells, cells), got {heights.shape}")
     owners = height_map_owners(sim, target.centre_xy, cells=heights.shape[0])
-    value = heightmap_distance_mm(height_map(sim, target.centre_xy, cells=heights.shape[0]), heights)
+    value = heightmap_distance_mm(height_map(sim, target.centre_xy, cells=heights.shape[0], floor=target.floor),
+                                  heights)
     filled = owners >= 0
     gradient = np.zeros_like(sim)
     # each particle owns at most one cell, so plain assignment suffices
@@ -167,11 +169,13 @@ VALIDATION_METRICS = {"pcd_cd": "pcd_cd", "prt_cd": "prt_cd", "pcd_emd": "pcd_em
 """The validation metrics (SPEC §6) and the loss each one is the value of."""
 
 
-def validation_metrics(sim_points, pcd_target, prt_target, real_heightmap, centre_xy) -> dict[str, float]:
+def validation_metrics(sim_points, pcd_target, prt_target, real_heightmap, centre_xy,
+                       floor: float = 0.0) -> dict[str, float]:
     """The five validation metrics in mm: pcd_cd, prt_cd, pcd_emd, prt_emd and heightmap_mm
     (the height map of the particles against ``real_heightmap`` (cells, cells) in m centred at
-    ``centre_xy`` (2,) in m); all point sets are (k, 3) in m."""
-    targets = Targets(pcd=pcd_target, prt=prt_target, heightmap=HeightMapTarget(real_heightmap, centre_xy))
+    ``centre_xy`` (2,) in m, empty cells at ``floor``, the table height in m); all point sets are
+    (k, 3) in m."""
+    targets = Targets(pcd=pcd_target, prt=prt_target, heightmap=HeightMapTarget(real_heightmap, centre_xy, floor))
     return {metric: loss_by_name(loss)(sim_points, targets)[0] for metric, loss in VALIDATION_METRICS.items()}
 
 

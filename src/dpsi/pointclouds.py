@@ -48,6 +48,9 @@ def atomic_output(path: str | os.PathLike):
         raise FileNotFoundError(f"{path}: cannot write, folder {path.parent} does not exist")
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}")
     os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; give it the usual permissions
     try:
         yield Path(tmp)
         os.replace(tmp, path)

@@ -98,6 +98,13 @@ class RawDataset:
     effectors: dict[str, EffectorSpec]
     datapoints: tuple[RawDatapoint, ...]
 
+    def datapoint(self, datapoint_id: str) -> RawDatapoint:
+        """The datapoint with this id; ``KeyError`` naming the dataset otherwise."""
+        for datapoint in self.datapoints:
+            if datapoint.id == datapoint_id:
+                return datapoint
+        raise KeyError(f"datapoint {datapoint_id!r} is not in the raw dataset {self.root}")
+
 
 def _fail(path: Path, problem: str):
     raise RawDataError(f"{path}: {problem}")

@@ -7,10 +7,11 @@ can run one job per datapoint:
    height, workspace) and ``truth.json``: the ground-truth parameters of each material and the generator
    settings (seed, simulator resolution, particle density).
 2. :func:`generate_datapoint` makes one datapoint ``<id>/``: a random lump (:mod:`dpsi.shapes`) near
-   :data:`CENTRE`, the planner trajectory with the tip starting at the lump's top centre
-   (``trajectory.csv``), the motion simulated with the truth parameters at a finer resolution than
-   identification uses, the final particles wrapped into a watertight surface, six noisy views with
-   calibration error of both states (``before/``, ``after/``), and the ground truth (``truth.npz``,
+   :data:`CENTRE` filled with particles at a finer resolution than identification uses; the planner
+   trajectory with the tip starting at the object's top centre (``trajectory.csv``); the motion
+   simulated with the truth parameters; six noisy views with calibration error (``before/``,
+   ``after/``) of both states, each captured as the watertight surface wrapped around its particles (so
+   that, without motion, before and after look the same); and the ground truth (``truth.npz``,
    :func:`write_ground_truth`).
 
 Everything is deterministic from the seed: each datapoint draws its randomness from (seed, id), so it
@@ -167,7 +168,8 @@ def write_twin_table(root: str | os.PathLike, plan: Plan | None = None, seed: in
     root = Path(root)
     rows = plan_rows(default_plan() if plan is None else plan)
     materials = MATERIALS if materials is None else materials
-    unknown = sorted({r["material"] for r in rows} - set(materials))
+    used = sorted({r["material"] for r in rows})
+    unknown = sorted(set(used) - set(materials))
     if unknown:
         raise ValueError(f"no ground-truth parameters for material(s) {unknown}; known: {sorted(materials)}")
     lattice_spacing(density)  # validates the density
@@ -177,7 +179,7 @@ def write_twin_table(root: str | os.PathLike, plan: Plan | None = None, seed: in
     with atomic_output(root / "dataset.yaml") as tmp:
         tmp.write_text(yaml.safe_dump({"table_z": TABLE_Z, "workspace": {"lo": list(lo), "hi": list(hi)}}))
     truth = {"seed": int(seed), "density": float(density), "simulator": asdict(config),
-             "materials": {m: materials[m].as_dict() for m in sorted({r["material"] for r in rows})}}
+             "materials": {m: materials[m].as_dict() for m in used}}
     with atomic_output(root / TRUTH_FILE) as tmp:
         tmp.write_text(json.dumps(truth, indent=2))
     return rows
@@ -261,7 +263,7 @@ def _row(root: Path, datapoint_id: str) -> pd.Series:
 
 def _table_clamped(mesh: o3d.geometry.TriangleMesh, table_z: float) -> o3d.geometry.TriangleMesh:
     """``mesh`` with vertices below the table raised onto it (the wrap's offset reaches under the
-    lowest particles, which rest on the table)."""
+    lowest particles, which rest on the table or, after a motion, sink into it a little)."""
     v = np.asarray(mesh.vertices).copy()
     v[:, 2] = np.maximum(v[:, 2], table_z)
     mesh.vertices = o3d.utility.Vector3dVector(v)
@@ -279,13 +281,14 @@ def generate_datapoint(root: str | os.PathLike, datapoint_id: str) -> Path:
         [seed, zlib.crc32(datapoint_id.encode())]).generate_state(5)
 
     offset = np.random.default_rng(jitter_seed).uniform(-CENTRE_JITTER, CENTRE_JITTER, 2)
-    before = random_lump(int(shape_seed), np.asarray(CENTRE) + offset, TABLE_Z)
+    particles = fill(random_lump(int(shape_seed), np.asarray(CENTRE) + offset, TABLE_Z), density)
+    spacing = lattice_spacing(density)
+    before = _table_clamped(particles_to_mesh(particles, spacing, name=f"{datapoint_id} before"), TABLE_Z)
     lo, hi = before.get_min_bound(), before.get_max_bound()
     waypoints = plan(get_motion(row.motion), int(plan_seed), start_xyz=[*(lo[:2] + hi[:2]) / 2, hi[2]])
-    particles = fill(before, density)
     scene = Scene(particles, 1.0 / density, by_name(row.effector), resample(waypoints), waypoints.xyz[0], TABLE_Z)
     final = simulator(config).forward(scene, materials[row.material])
-    after = _table_clamped(particles_to_mesh(final, lattice_spacing(density), name=datapoint_id), TABLE_Z)
+    after = _table_clamped(particles_to_mesh(final, spacing, name=f"{datapoint_id} after"), TABLE_Z)
     centre_xy = scene.centre_xy
     truth = GroundTruth(datapoint_id, row.material, materials[row.material], 1.0 / density, TABLE_Z,
                         particles, final, centre_xy,

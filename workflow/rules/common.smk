@@ -15,7 +15,7 @@ validate(config, "../schemas/config.schema.yaml")
 
 RAW = f"raw/{config['dataset']}"
 RESULTS = f"results/{config['dataset']}"
-LIBRARY = Path(workflow.basedir).parent / "src" / "dpsi"
+LIBRARY = Path(workflow.main_snakefile).parent / "src" / "dpsi"
 
 
 def library(*modules):

@@ -38,6 +38,7 @@ rule make_figures:
     input:
         logs=[s.replace("summary.json", "log.csv") for s in runs()],
         ood=OOD_SOURCES if 2 in IDENT["levels"] else [],
+        ood_particles=[f.replace(".json", ".npz") for f in OOD_SOURCES] if 2 in IDENT["levels"] else [],
         datapoints=prepared(ood_ids()) if 2 in IDENT["levels"] else [],
         code=library("reporting", "heightmap"),
     threads: 1

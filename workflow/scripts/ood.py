@@ -6,7 +6,7 @@ import json
 import numpy as np
 
 from dpsi.datapoint import load_datapoint
-from dpsi.losses import validation_metrics
+from dpsi.identification import evaluate
 from dpsi.parameters import HAND_PICKED, Parameters
 from dpsi.pointclouds import atomic_output
 from dpsi.provenance import recorded
@@ -27,8 +27,8 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
     records, finals = [], {}
     for path in snakemake.input.datapoints:
         dp = load_datapoint(path)
-        final = simulator.forward(dp.scene(), params)
-        metrics = validation_metrics(final, dp.pcd_target, dp.prt_target, dp.heightmap, dp.centre_xy)
+        metrics = evaluate(simulator, dp, params)
+        final = simulator.final_positions()
         records.append({"motion": dp.motion, "config": dp.id, "loss": loss, "dataset": dataset,
                         "parameters": params.as_dict(), **metrics})
         finals[dp.id] = final

@@ -7,6 +7,7 @@ canvas without pyplot, so no GUI backend or global figure state is involved.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -15,11 +16,13 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from dpsi.datapoint import Datapoint
 from dpsi.heightmap import SIZE, height_map, heightmap_distance_mm
-from dpsi.identification import METRICS
+from dpsi.losses import VALIDATION_METRICS as METRICS
 from dpsi.parameters import IDENTIFIED, LOWER, UPPER
 from dpsi.pointclouds import atomic_output
+
+if TYPE_CHECKING:  # importing dpsi.datapoint at run time would load the simulator
+    from dpsi.datapoint import Datapoint
 
 DPI = 150
 """Resolution of the PNG files (dots per inch)."""
@@ -39,19 +42,20 @@ RUN_KEYS = ("level", "loss", "dataset", "seed", "iteration")
 """Columns that identify one point of one run in the table given to :func:`plot_runs`."""
 
 
-def new_figure(width: float, height: float) -> Figure:
-    """An empty figure of ``width`` × ``height`` inches on the Agg canvas, with constrained layout."""
-    fig = Figure(figsize=(width, height), layout="constrained")
+def new_figure(width: float, height: float, layout: str | None = "constrained") -> Figure:
+    """An empty figure of ``width`` × ``height`` inches on the Agg canvas with matplotlib's ``layout``."""
+    fig = Figure(figsize=(width, height), layout=layout)
     FigureCanvasAgg(fig)
     return fig
 
 
 def save(fig: Figure, png_path: str | Path, pdf_path: str | Path) -> None:
     """Write ``fig`` to ``png_path`` (at :data:`DPI`) and ``pdf_path``, each atomically."""
-    for path, fmt in ((Path(png_path), "png"), (Path(pdf_path), "pdf")):
+    outputs = ((Path(png_path), "png"), (Path(pdf_path), "pdf"))
+    for path, fmt in outputs:
         if path.suffix.lower() != f".{fmt}":
             raise ValueError(f"{path}: a {fmt.upper()} figure needs the suffix .{fmt}")
-    for path, fmt in ((png_path, "png"), (pdf_path, "pdf")):
+    for path, fmt in outputs:
         with atomic_output(path) as tmp:
             fig.savefig(tmp, format=fmt, dpi=DPI)
 
@@ -84,7 +88,7 @@ def plot_runs(runs: pd.DataFrame, level: int, png_path: str | Path, pdf_path: st
     quantities += [(n, *PARAMETER_AXES[n]) for n in IDENTIFIED[level]]
     colour = {loss: f"C{k}" for k, loss in enumerate(losses)}
 
-    fig = new_figure(1.4 + 3.0 * len(datasets), 1.0 + 1.45 * len(quantities))
+    fig = new_figure(2.0 + 3.0 * len(datasets), 1.0 + 1.45 * len(quantities))
     axes = fig.subplots(len(quantities), len(datasets), sharex=True, sharey="row", squeeze=False)
     for c, dataset in enumerate(datasets):
         axes[0, c].set_title(str(dataset), fontsize="medium")
@@ -94,18 +98,21 @@ def plot_runs(runs: pd.DataFrame, level: int, png_path: str | Path, pdf_path: st
             for r, (column, _, scale) in enumerate(quantities):
                 by_seed = one.pivot_table(index="iteration", columns="seed", values=column, dropna=False) * scale
                 _plot_seeds(axes[r, c], by_seed, colour[loss])
+    first, last = rows["iteration"].min(), rows["iteration"].max()
+    pad = 0.02 * (last - first) if last > first else 1.0
+    axes[0, 0].set_xlim(first - pad, last + pad)
     for r, (column, label, scale) in enumerate(quantities):
         axes[r, 0].set_ylabel(label)
         if column in LOWER:
             axes[r, 0].set_ylim(LOWER[column] * scale, UPPER[column] * scale)
     for ax in axes.flat:
-        ax.xaxis.set_major_locator(ticker.MaxNLocator(nbins=5, integer=True, steps=[1, 2, 5, 10]))
+        ax.xaxis.set_major_locator(ticker.MaxNLocator(nbins=5, integer=True, steps=[1, 2, 2.5, 5, 10]))
         ax.yaxis.set_major_locator(ticker.MaxNLocator(nbins=4))
         ax.grid(alpha=0.3)
     handles = [Line2D([], [], color=colour[loss], label=str(loss)) for loss in losses]
     handles += [Line2D([], [], color="grey", label="mean over seeds"),
                 Line2D([], [], color="grey", linestyle=":", label="one seed")]
-    fig.legend(handles=handles, loc="outside upper center", ncols=min(len(handles), 2 + len(datasets)),
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 2 + len(datasets)),
                frameon=False)
     fig.suptitle(f"Level {level}: validation metrics and identified parameters")
     save(fig, png_path, pdf_path)
@@ -158,12 +165,9 @@ def plot_heightmaps(datapoint: Datapoint, final_particles, png_path: str | Path,
     axes[0].set_ylabel("y from map centre (mm)")
     fig.colorbar(axes[1].images[0], ax=axes[:2], label="height above table (mm)", shrink=0.85)
     fig.colorbar(image, ax=axes[2], label="difference (mm)", shrink=0.85)
-    fig.suptitle(_title(title, f"height-map distance {distance:.1f} mm"))
+    detail = f"height-map distance {distance:.1f} mm"
+    fig.suptitle(f"{title}\n{detail}" if title else detail)
     save(fig, png_path, pdf_path)
-
-
-def _title(title: str, detail: str) -> str:
-    return f"{title}\n{detail}" if title else detail
 
 
 def plot_particles(datapoint: Datapoint, final_particles, png_path: str | Path, pdf_path: str | Path,
@@ -180,15 +184,18 @@ def plot_particles(datapoint: Datapoint, final_particles, png_path: str | Path, 
     lo, hi = lo - pad, hi + pad
     heights = colors.Normalize(lo[2], hi[2])
 
-    fig = new_figure(13.0, 4.8)
+    fig = new_figure(13.0, 4.6, layout=None)  # constrained layout does not handle 3D axes
+    fig.subplots_adjust(left=0.0, right=0.97, bottom=0.0, top=0.95, wspace=0.08)
     for k, (name, points) in enumerate(panels):
         ax = fig.add_subplot(1, 3, k + 1, projection="3d")
         ax.scatter(*points.T, c=points[:, 2], cmap="viridis", norm=heights, s=2, depthshade=False)
         ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]),
                xlabel="x (mm)", ylabel="y (mm)", zlabel="z (mm)")
-        ax.set_box_aspect(hi - lo)
-        ax.view_init(elev=25, azim=-60)
-        ax.set_title(f"{name} (n = {len(points)})")
+        ax.set_box_aspect(hi - lo, zoom=0.9)
+        ax.view_init(elev=35, azim=-60)
+        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+            axis.set_major_locator(ticker.MaxNLocator(nbins=4))
+        ax.set_title(f"{name} (n = {len(points)})", y=0.93)
     fig.suptitle(title)
     save(fig, png_path, pdf_path)
 

@@ -576,7 +576,13 @@ class Simulator:
                 raise SimulationError(f"step {step + 1} of {steps} {problem} "
                                       f"(substeps={self.substeps}, parameters {params.as_dict()})")
         self._scene, self._params, self._checkpoints = scene, params, checkpoints
-        return checkpoints[-1, :, :3].copy()
+        return self.final_positions()
+
+    def final_positions(self) -> np.ndarray:
+        """Particle positions (n, 3) in m at the end of the last :meth:`forward`."""
+        if self._checkpoints is None:
+            raise SimulationError("no simulation has run yet")
+        return self._checkpoints[-1, :, :3].copy()
 
     def backward(self, grad_positions: np.ndarray) -> dict[str, float]:
         """Gradient of a scalar loss L with respect to θ, given dL/d(final positions) (n, 3) in 1/m
