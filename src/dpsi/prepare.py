@@ -63,15 +63,26 @@ def surface_points(mesh: o3d.geometry.TriangleMesh, spacing: float = SURFACE_SPA
     return a[tri] + u[:, None] * (b[tri] - a[tri]) + w[:, None] * (c[tri] - a[tri])
 
 
-def reconstruct_state(source: StateSource, workspace, table_z: float,
-                      name: str = "state") -> tuple[np.ndarray, o3d.geometry.TriangleMesh]:
-    """Surface points (n, 3) in m and watertight mesh of one state, entering the reconstruction at the
-    stage matching the form it is given in (views: fusion; fused cloud: meshing; mesh: as it is)."""
+def state_points(source: StateSource, workspace, table_z: float, name: str = "state") -> np.ndarray:
+    """Surface points (n, 3) in m of one state: its fused views, its given fused cloud, or points
+    sampled on its given mesh."""
     data = source.load()
     if source.form == "mesh":
-        return surface_points(data), data
-    points = fuse_state(data, workspace, table_z, name) if source.form == "views" else data
-    return points, reconstruct_mesh(points, name=name)
+        return surface_points(data)
+    return fuse_state(data, workspace, table_z, name) if source.form == "views" else data
+
+
+def state_mesh(source: StateSource, points: np.ndarray, name: str = "state") -> o3d.geometry.TriangleMesh:
+    """Watertight mesh of one state: its given mesh, or the ball-pivoting mesh of its surface ``points``."""
+    return source.load() if source.form == "mesh" else reconstruct_mesh(points, name=name)
+
+
+def reconstruct_state(source: StateSource, workspace, table_z: float,
+                      name: str = "state") -> tuple[np.ndarray, o3d.geometry.TriangleMesh]:
+    """Surface points and watertight mesh of one state, entering the reconstruction at the stage
+    matching the form it is given in (views: fusion; fused cloud: meshing; mesh: as it is)."""
+    points = state_points(source, workspace, table_z, name)
+    return points, state_mesh(source, points, name)
 
 
 def fill_particles(mesh: o3d.geometry.TriangleMesh, density: float, name: str = "before mesh") -> np.ndarray:
@@ -124,15 +135,12 @@ def prepare_datapoint(dataset: RawDataset, datapoint: str | RawDatapoint, densit
     """All stages in memory: the datapoint (an id or a row of ``dataset``) prepared at ``density``
     particles/m³."""
     if isinstance(datapoint, str):
-        found = [d for d in dataset.datapoints if d.id == datapoint]
-        if not found:
-            raise KeyError(f"datapoint {datapoint!r} is not in the raw dataset {dataset.root}")
-        datapoint = found[0]
+        datapoint = dataset.datapoint(datapoint)
     _, before_mesh = reconstruct_state(datapoint.before, dataset.workspace, dataset.table_z, f"{datapoint.id} before")
     after_points, after_mesh = reconstruct_state(datapoint.after, dataset.workspace, dataset.table_z,
                                                  f"{datapoint.id} after")
     return build_datapoint(datapoint, before_mesh, after_mesh, after_points, density, dataset.table_z)
 
 
-__all__ = ["SURFACE_SPACING", "fuse_state", "surface_points", "reconstruct_state", "fill_particles",
-           "footprint_centre", "targets", "trajectory_and_start", "build_datapoint", "prepare_datapoint"]
+__all__ = ["SURFACE_SPACING", "fuse_state", "surface_points", "state_points", "state_mesh", "reconstruct_state",
+           "fill_particles", "footprint_centre", "targets", "trajectory_and_start", "build_datapoint", "prepare_datapoint"]

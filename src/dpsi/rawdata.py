@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -241,14 +242,20 @@ def _state_source(folder: Path, state: str) -> StateSource:
         raise RawDataError(str(e)) from None
 
 
-def load_raw_dataset(root: str | os.PathLike) -> RawDataset:
-    """Validate the whole raw dataset under ``root`` (every table row, file, cloud, transform, mesh and
-    trajectory is read once) and describe it. Raises :class:`RawDataError` naming the first bad file."""
+def load_raw_dataset(root: str | os.PathLike, only: Sequence[str] | None = None) -> RawDataset:
+    """Validate the raw dataset under ``root`` (the table, and every file, cloud, transform, mesh and
+    trajectory of its datapoints — or of the datapoints named in ``only`` — read once) and describe it.
+    Raises :class:`RawDataError` naming the first bad file."""
     root = Path(root)
     if not root.is_dir():
         _fail(root, "raw dataset folder not found")
     table_z, workspace, effectors = _read_config(root)
     df = _read_table(root, effectors)
+    if only is not None:
+        unknown = sorted(set(only) - set(df["id"]))
+        if unknown:
+            _fail(root / "datapoints.csv", f"has no datapoint(s) {unknown}")
+        df = df[df["id"].isin(only)]
     datapoints = []
     checked_trajectories: set[Path] = set()
     for r in df.itertuples(index=False):

@@ -8,7 +8,7 @@ from dpsi.provenance import recorded
 from dpsi.rawdata import load_raw_dataset
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
-    dataset = load_raw_dataset(Path(snakemake.input[0]).parent)
+    dataset = load_raw_dataset(Path(snakemake.input[0]).parent, only=[snakemake.wildcards.id])
     datapoint = dataset.datapoint(snakemake.wildcards.id)
     source = getattr(datapoint, snakemake.wildcards.state)
     name = f"{datapoint.id} {snakemake.wildcards.state}"

@@ -10,7 +10,7 @@ from dpsi.provenance import recorded
 from dpsi.rawdata import load_raw_dataset
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
-    table_z = load_raw_dataset(Path(snakemake.input.layout).parent).table_z
+    table_z = load_raw_dataset(Path(snakemake.input.layout).parent, only=[snakemake.wildcards.id]).table_z
     particles = read_points(snakemake.input.particles)
     centre = prepare.footprint_centre(particles)
     prt, pcd, heightmap = prepare.targets(read_mesh(snakemake.input.mesh), read_points(snakemake.input.points),

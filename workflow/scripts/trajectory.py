@@ -10,7 +10,7 @@ from dpsi.provenance import recorded
 from dpsi.rawdata import load_raw_dataset
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
-    datapoint = load_raw_dataset(Path(snakemake.input[0]).parent).datapoint(snakemake.wildcards.id)
+    datapoint = load_raw_dataset(Path(snakemake.input[0]).parent, only=[snakemake.wildcards.id]).datapoint(snakemake.wildcards.id)
     trajectory, start = prepare.trajectory_and_start(datapoint.trajectory)
     with atomic_output(snakemake.output[0]) as tmp, open(tmp, "wb") as f:
         np.savez(f, positions=trajectory.positions, yaw=trajectory.yaw, dt=trajectory.dt, start=start)
