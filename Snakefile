@@ -1,8 +1,8 @@
 """DPSI: differentiable physics-based system identification of elastoplastic objects.
 
-    snakemake -j1 tables                       # the quick default (config/config.yaml)
-    snakemake -j1 --configfile config/paper.yaml tables
-    snakemake --profile profiles/slurm --configfile config/paper.yaml all
+snakemake -j1 tables                       # the quick default (config/config.yaml)
+snakemake -j1 --configfile config/paper.yaml tables
+snakemake --profile profiles/slurm --configfile config/paper.yaml all
 """
 
 from snakemake.utils import min_version

@@ -40,17 +40,19 @@ class Effector:
     sdf_spacing: float = 0.0
 
     @property
-    def bounding_radius(self) -> float:
-        """Radius (m) of a sphere about the tip that contains the whole shape."""
+    def bounds(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """Corners (m) of a box in the effector frame that contains the whole shape."""
         if self.kind == GRID:
-            lower = np.asarray(self.sdf_lower)
-            upper = lower + self.sdf_spacing * (SDF_GRID_RESOLUTION - 1)
-            return float(np.linalg.norm(np.maximum(np.abs(lower), np.abs(upper))))
+            upper = np.asarray(self.sdf_lower) + self.sdf_spacing * (SDF_GRID_RESOLUTION - 1)
+            return tuple(self.sdf_lower), tuple(map(float, upper))
         if self.kind == BOX:
-            return float(np.linalg.norm([self.size[0] / 2, self.size[1] / 2, self.size[2]]))
+            half = (self.size[0] / 2, self.size[1] / 2)
+            return (-half[0], -half[1], 0.0), (half[0], half[1], self.size[2])
         if self.kind == BULLET:
-            return float(np.hypot(self.size[0], self.size[1]))
-        return float(np.linalg.norm([self.size[0], self.size[1] / 2, self.size[2]]))
+            r = self.size[0]
+            return (-r, -r, 0.0), (r, r, self.size[1])
+        r = self.size[0]
+        return (-r, -self.size[1] / 2, 0.0), (r, self.size[1] / 2, self.size[2])
 
 
 RECTANGLE = Effector("rectangle", BOX, size=(0.03, 0.03, 0.06), initial_yaw=np.pi / 4)

@@ -10,7 +10,6 @@ from snakemake.utils import validate
 from dpsi import datasets as dpsi_datasets
 from dpsi import twin as dpsi_twin
 
-
 validate(config, "../schemas/config.schema.yaml")
 
 RAW = f"raw/{config['dataset']}"
@@ -25,7 +24,9 @@ def library(*modules):
     files = []
     for module in modules:
         path = LIBRARY / module
-        files += sorted(path.glob("*.py")) if path.is_dir() else [path.with_suffix(".py")]
+        files += (
+            sorted(path.glob("*.py")) if path.is_dir() else [path.with_suffix(".py")]
+        )
     return [str(f) for f in files]
 
 
@@ -36,8 +37,10 @@ def datapoints_table():
         return pd.DataFrame(dpsi_twin.plan_rows(plan))
     path = Path(RAW) / "datapoints.csv"
     if not path.is_file():
-        raise WorkflowError(f"{path} not found: put a raw dataset there (docs/raw-format.md) or give a `twin` "
-                            "section in the config")
+        raise WorkflowError(
+            f"{path} not found: put a raw dataset there (docs/raw-format.md) or give a `twin` "
+            "section in the config"
+        )
     return pd.read_csv(path, dtype=str)
 
 
@@ -64,9 +67,13 @@ def prepared(ids):
 
 def runs(level=None):
     """Summary files of every identification run (of one level if given)."""
-    return expand(f"{RESULTS}/runs/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}/summary.json",
-                  level=[level] if level else IDENT["levels"], loss=IDENT["losses"], dataset=IDENT["datasets"],
-                  seed=IDENT["seeds"])
+    return expand(
+        f"{RESULTS}/runs/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}/summary.json",
+        level=[level] if level else IDENT["levels"],
+        loss=IDENT["losses"],
+        dataset=IDENT["datasets"],
+        seed=IDENT["seeds"],
+    )
 
 
 def simulator_params():
@@ -86,7 +93,36 @@ def for_each_run():
 try:
     for_each_run()
 except ValueError as err:
-    raise WorkflowError(f"the configuration asks for a dataset the datapoints cannot form: {err}")
+    raise WorkflowError(
+        f"the configuration asks for a dataset the datapoints cannot form: {err}"
+    )
+
+
+TABLES = ["motions", "parameters", "best_params", "ood_heightmap", "recovery_error"]
+OOD_SOURCES = [f"{RESULTS}/ood/hand-picked.json"] + expand(
+    f"{RESULTS}/ood/{{loss}}/{{dataset}}.json",
+    loss=IDENT["losses"],
+    dataset=IDENT["datasets"],
+)
+
+
+def twin_settings():
+    twin = config["twin"]
+    return {
+        "seed": twin["seed"],
+        "density": twin["density"],
+        "dx": twin["dx"],
+        "max_particles": twin.get("max_particles", 22000),
+        "groups": twin["groups"],
+    }
+
+
+def raw_datapoint(wildcards):
+    return [f"{RAW}/{wildcards.id}", f"{RAW}/datapoints.csv"]
+
+
+def truth_file():
+    return [f"{RAW}/truth.json"] if "twin" in config else []
 
 
 wildcard_constraints:

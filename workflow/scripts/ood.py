@@ -6,7 +6,7 @@ import json
 import numpy as np
 
 from dpsi.datapoint import load_datapoint
-from dpsi.identification import evaluate
+from dpsi.heightmap import height_map, heightmap_distance_mm
 from dpsi.parameters import HAND_PICKED, Parameters
 from dpsi.pointclouds import atomic_output
 from dpsi.provenance import recorded
@@ -27,12 +27,12 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
     records, finals = [], {}
     for path in snakemake.input.datapoints:
         dp = load_datapoint(path)
-        metrics = evaluate(simulator, dp, params)
-        final = simulator.final_positions()
+        final = simulator.forward(dp.scene(), params)
+        distance = heightmap_distance_mm(height_map(final, dp.centre_xy, floor=dp.table_z), dp.heightmap)
         records.append({"motion": dp.motion, "config": dp.id, "loss": loss, "dataset": dataset,
-                        "parameters": params.as_dict(), **metrics})
+                        "parameters": params.as_dict(), "heightmap_mm": distance})
         finals[dp.id] = final
-        log.info("%s: height-map distance %.1f mm", dp.id, metrics["heightmap_mm"])
+        log.info("%s: height-map distance %.1f mm", dp.id, distance)
     with atomic_output(snakemake.output.records) as tmp:
         tmp.write_text(json.dumps(records, indent=1))
     with atomic_output(snakemake.output.particles) as tmp, open(tmp, "wb") as f:

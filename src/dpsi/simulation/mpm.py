@@ -32,7 +32,7 @@ from ..parameters import NAMES, Parameters
 from .config import Scene, SimulationError, SimulatorConfig
 from .contact import effector_normal, effector_sdf, frictional_contact, rotation_z
 from .runtime import ensure_taichi
-from .svd import svd_backward
+from .svd import svd_backward, warm_started_svd
 
 GRAVITY = -9.81
 """Acceleration of gravity along z (m/s²)."""
@@ -44,8 +44,9 @@ REGION_MARGIN = 5
 """Cells around the particles' bounding box that a step's grid work covers: the 3-node stencil reaches
 1.5 cells out, leaving 3.5 cells (≈ 2 cm) for motion within one 0.01 s step."""
 
-STATE_WIDTH = 24
-"""Floats per particle in a checkpoint: x (3), v (3), C (9), F (9)."""
+STATE_WIDTH = 33
+"""Floats per particle in a checkpoint: x (3), v (3), C (9), F (9), and the right singular vectors V (9)
+that warm-start the next step's first SVD."""
 
 
 @ti.data_oriented
@@ -80,7 +81,8 @@ class Simulator:
 
         self.effector_kind = ti.field(ti.i32, shape=())
         self.effector_size = ti.Vector.field(3, f64, shape=())
-        self.effector_radius = scalar()
+        self.effector_lower = ti.Vector.field(3, f64, shape=())
+        self.effector_upper = ti.Vector.field(3, f64, shape=())
         self.sdf = ti.field(f64, shape=(SDF_GRID_RESOLUTION,) * 3)
         self.sdf_lower = ti.Vector.field(3, f64, shape=())
         self.sdf_spacing = scalar()
@@ -97,6 +99,7 @@ class Simulator:
         self.U = ti.Matrix.field(3, 3, f64, shape=slots, needs_grad=True)
         self.sigma = ti.Vector.field(3, f64, shape=slots, needs_grad=True)
         self.sigma_elastic = ti.Vector.field(3, f64, shape=n, needs_grad=True)
+        self.V_start = ti.Matrix.field(3, 3, f64, shape=n)
         self.V = ti.Matrix.field(3, 3, f64, shape=slots, needs_grad=True)
         self.affine = ti.Matrix.field(3, 3, f64, shape=n, needs_grad=True)
         self.v_grid = ti.Vector.field(3, f64, shape=n, needs_grad=True)
@@ -142,9 +145,9 @@ class Simulator:
         phi = 1.0
         normal = ti.Vector([0.0, 0.0, 1.0])
         vel = ti.Vector.zero(ti.f64, 3)
-        if rel.norm() < self.effector_radius[None] + 2.0 * self.dx:
-            to_local = rotation_z(-yaw)
-            local = to_local @ rel
+        local = rotation_z(-yaw) @ rel
+        margin = 2.0 * self.dx
+        if (local > self.effector_lower[None] - margin).all() and (local < self.effector_upper[None] + margin).all():
             kind, size = self.effector_kind[None], self.effector_size[None]
             lower, spacing = self.sdf_lower[None], self.sdf_spacing[None]
             phi = effector_sdf(local, kind, size, self.sdf, lower, spacing)
@@ -190,11 +193,14 @@ class Simulator:
     @ti.kernel
     def constitutive(self, s: ti.i32):
         """Forward pass of the whole constitutive update: F_tr, its SVD (kept per substep for the
-        backward pass), plastic flow, the new F and the affine momentum."""
-        ti.loop_config(serialize=self.serial)
+        backward pass; warm-started from the previous substep's V), plastic flow, the new F and the
+        affine momentum. The SVD makes this the one kernel heavy enough to be worth starting threads for,
+        whatever ``serial`` says."""
         for p in range(self.n_particles[None]):
-            u, sig, v = ti.svd(self.trial(s, p), ti.f64)
-            sigma = ti.Vector([sig[0, 0], sig[1, 1], sig[2, 2]])
+            previous = self.V_start[p]
+            if s > 0:
+                previous = self.V[s - 1, p]
+            u, sigma, v = warm_started_svd(self.trial(s, p), previous)
             self.U[s, p], self.V[s, p], self.sigma[s, p] = u, v, sigma
             elastic = self.plastic_flow(sigma)
             self.sigma_elastic[p] = elastic
@@ -376,23 +382,27 @@ class Simulator:
             for a, b in ti.static(ti.ndrange(3, 3)):
                 self.C[0, p][a, b] = state[p, 6 + 3 * a + b]
                 self.F[0, p][a, b] = state[p, 15 + 3 * a + b]
+                self.V_start[p][a, b] = state[p, 24 + 3 * a + b]
 
     @ti.kernel
     def store_state(self, last: ti.i32, state: ti.types.ndarray()) -> ti.i32:
-        """Copy slot ``last`` into slot 0 and into ``state``; return 1 if a value is not finite,
-        2 if a particle left the box, else 0."""
+        """Copy slot ``last`` (and the last SVD's V) into slot 0 and into ``state``; return 1 if a value
+        is not finite, 2 if a particle left the box, else 0."""
         status = 0
         lower = 2.0
         upper = ti.Vector(self.grid_shape).cast(ti.f64) - 2.0
         for p in range(self.n_particles[None]):
             x, v, C, F = self.x[last, p], self.v[last, p], self.C[last, p], self.F[last, p]
             self.x[0, p], self.v[0, p], self.C[0, p], self.F[0, p] = x, v, C, F
+            V = self.V[last - 1, p]
+            self.V_start[p] = V
             for a in ti.static(range(3)):
                 state[p, a] = x[a]
                 state[p, 3 + a] = v[a]
             for a, b in ti.static(ti.ndrange(3, 3)):
                 state[p, 6 + 3 * a + b] = C[a, b]
                 state[p, 15 + 3 * a + b] = F[a, b]
+                state[p, 24 + 3 * a + b] = V[a, b]
             total = x.sum() + v.sum() + C.sum() + F.sum()
             if not (total == total and ti.abs(total) < 1e30):
                 ti.atomic_max(status, 1)
@@ -465,7 +475,7 @@ class Simulator:
     def _set_effector(self, effector: Effector) -> None:
         self.effector_kind[None] = effector.kind
         self.effector_size[None] = effector.size
-        self.effector_radius[None] = effector.bounding_radius
+        self.effector_lower[None], self.effector_upper[None] = effector.bounds
         if effector.kind == GRID:
             self.sdf.from_numpy(effector.sdf)
             self.sdf_lower[None] = effector.sdf_lower
@@ -564,7 +574,8 @@ class Simulator:
         checkpoints = np.empty((steps + 1, n, STATE_WIDTH))
         checkpoints[0] = 0.0
         checkpoints[0, :, :3] = scene.particles
-        checkpoints[0, :, 15:] = np.eye(3).reshape(1, 9)
+        checkpoints[0, :, 15:24] = np.eye(3).reshape(1, 9)
+        checkpoints[0, :, 24:33] = np.eye(3).reshape(1, 9)
         self.load_state(checkpoints[0])
         for step in range(steps):
             self._set_active_region(checkpoints[step])

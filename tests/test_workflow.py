@@ -1,0 +1,118 @@
+"""The Snakemake workflow: configuration checks, lint and format, and a tiny end-to-end run through a
+cluster executor plugin (each job a separate submission, so nothing can rely on shared process state)."""
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+SNAKEMAKE = [sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile")]
+TINY = ROOT / "tests" / "data" / "tiny.yaml"
+
+
+def snakemake(workdir, *args, config=TINY):
+    return subprocess.run([*SNAKEMAKE, "--directory", str(workdir), "--configfile", str(config), *args],
+                          capture_output=True, text=True)
+
+
+def bad_config(tmp_path, edit):
+    config = yaml.safe_load(TINY.read_text())
+    edit(config)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda c: c["identification"].update(losses=["prt_chamfer"]), "prt_chamfer"),
+    (lambda c: c["identification"].update(datasets=["3-mix"]), "3-mix"),
+    (lambda c: c.update(colour="blue"), "colour"),
+    (lambda c: c["reconstruction"].update(density=-1), "density"),
+])
+def test_bad_config_fails_at_start_up(tmp_path, edit, message):
+    run = snakemake(tmp_path, "-n", "tables", config=bad_config(tmp_path, edit))
+    assert run.returncode != 0
+    output = run.stdout + run.stderr
+    assert "validating config" in output and message in output
+
+
+def test_dataset_the_datapoints_cannot_form_fails_at_start_up(tmp_path):
+    run = snakemake(tmp_path, "-n", "tables",
+                    config=bad_config(tmp_path, lambda c: c["identification"].update(datasets=["1-cylinder"])))
+    assert run.returncode != 0
+    assert "poking-2 with cylinder" in run.stdout + run.stderr
+
+
+def test_lint_has_no_findings(tmp_path):
+    run = snakemake(tmp_path, "--lint")
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "Congratulations" in run.stdout + run.stderr
+
+
+def test_snakefmt_is_clean():
+    files = [ROOT / "Snakefile", *sorted((ROOT / "workflow" / "rules").glob("*.smk"))]
+    run = subprocess.run([shutil.which("snakefmt", path=str(Path(sys.executable).parent)) or "snakefmt",
+                          "--check", *map(str, files)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stdout + run.stderr
+
+
+def test_changing_one_stage_parameter_reruns_only_what_depends_on_it(tiny_run, tmp_path):
+    """Dry run after a finished run: a new reconstruction density touches filling and everything after
+    it, not the twin, fusion, meshing or trajectories."""
+    denser = bad_config(tmp_path, lambda c: c["reconstruction"].update(density=9e6))
+    run = snakemake(tiny_run, "-n", "tables", "--quiet", "rules", config=denser)
+    assert run.returncode == 0, run.stderr
+    rerun = set(run.stdout.split())
+    assert {"fill", "targets", "prepare", "identify"} <= rerun
+    assert not {"twin_table", "twin_datapoint", "fuse", "mesh", "trajectory"} & rerun
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """`tables` and `figures` on the tiny twin, every job submitted through the generic cluster executor."""
+    workdir = tmp_path_factory.mktemp("workflow")
+    run = snakemake(workdir, "--executor", "cluster-generic", "--cluster-generic-submit-cmd", "bash",
+                    "--jobs", "1", "--latency-wait", "5", "--seconds-between-status-checks", "1", "tables", "figures")
+    assert run.returncode == 0, (run.stdout + run.stderr)[-4000:]
+    return workdir
+
+
+def test_tiny_workflow_makes_every_table(tiny_run):
+    tables = tiny_run / "results" / "tables"
+    motions = pd.read_csv(tables / "motions.csv")
+    assert list(motions.columns) == ["motion", "segments", "duration_s", "real_waypoints", "sim_steps"]
+    assert list(motions.sim_steps) == [87, 94, 152, 153, 378, 460, 625]
+    best = pd.read_csv(tables / "best_params.csv")
+    assert list(best.columns) == ["level", "loss", "dataset", "E", "nu", "rho", "yield_stress", "mu_table",
+                                  "mu_effector", "val_heightmap_mm"]
+    assert set(best.loss) == {"prt_cd", "hand-picked"} and set(best.level) == {1, 2}
+    assert best.drop(columns=["dataset"]).notna().all().all() and (best.val_heightmap_mm > 0).all()
+    ood = pd.read_csv(tables / "ood_heightmap.csv")
+    assert list(ood.columns) == ["motion", "config", "loss", "dataset", "heightmap_mm"]
+    assert set(ood.motion) == {"flattening"} and "hand-picked" in set(ood.loss)
+    assert ood.heightmap_mm.notna().all() and (ood.heightmap_mm > 0).all()
+    recovery = pd.read_csv(tables / "recovery_error.csv")
+    assert list(recovery.columns) == ["level", "loss", "dataset", "seed", "parameter", "truth", "estimate",
+                                      "rel_error"]
+    assert len(recovery) == 12 and recovery.rel_error.notna().all()
+    for name in ("motions", "parameters", "best_params", "ood_heightmap", "recovery_error"):
+        assert (tables / f"{name}.md").read_text().count("|") > 10
+        assert r"\toprule" in (tables / f"{name}.tex").read_text()
+        assert (tables / f"{name}.csv.provenance.json").is_file()
+
+
+def test_tiny_workflow_makes_figures(tiny_run):
+    figures = tiny_run / "results" / "figures"
+    for name in ("runs_L1", "runs_L2", "heightmaps_clay-flattening-cylinder-ood-0"):
+        assert (figures / f"{name}.png").stat().st_size > 10_000
+        assert (figures / f"{name}.pdf").stat().st_size > 1_000
+
+
+def test_rerun_of_a_finished_workflow_does_nothing(tiny_run):
+    run = snakemake(tiny_run, "-n", "tables", "figures")
+    assert run.returncode == 0 and "Nothing to be done" in run.stdout + run.stderr
