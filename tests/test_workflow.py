@@ -24,7 +24,7 @@ def bad_config(tmp_path, edit):
     config = yaml.safe_load(TINY.read_text())
     edit(config)
     path = tmp_path / "bad.yaml"
-    path.write_text(yaml.safe_dump(config))
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
 
 

@@ -77,7 +77,7 @@ def runs(level=None):
 
 
 def simulator_params():
-    return {**config.get("simulator", {}), "arch": config.get("taichi_arch", "cpu")}
+    return dict(sorted({**config.get("simulator", {}), "arch": config.get("taichi_arch", "cpu")}.items()))
 
 
 def for_each_run():
@@ -113,7 +113,7 @@ def twin_settings():
         "density": twin["density"],
         "dx": twin["dx"],
         "max_particles": twin.get("max_particles", 22000),
-        "groups": twin["groups"],
+        "groups": [dict(sorted(group.items())) for group in twin["groups"]],
     }
 
 
