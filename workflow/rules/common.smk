@@ -77,7 +77,14 @@ def runs(level=None):
 
 
 def simulator_params():
-    return dict(sorted({**config.get("simulator", {}), "arch": config.get("taichi_arch", "cpu")}.items()))
+    return dict(
+        sorted(
+            {
+                **config.get("simulator", {}),
+                "arch": config.get("taichi_arch", "cpu"),
+            }.items()
+        )
+    )
 
 
 def for_each_run():
