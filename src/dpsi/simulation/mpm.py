@@ -115,7 +115,6 @@ class Simulator:
         self.g_normal = ti.Vector.field(3, f64, shape=g)
         self.g_v_effector = ti.Vector.field(3, f64, shape=g)
 
-        self._scene = None
         self._params = None
         self._checkpoints = None
         self.substeps = 0
@@ -586,7 +585,7 @@ class Simulator:
                 problem = "produced NaN or inf" if status == 1 else "pushed particles out of the simulated box"
                 raise SimulationError(f"step {step + 1} of {steps} {problem} "
                                       f"(substeps={self.substeps}, parameters {params.as_dict()})")
-        self._scene, self._params, self._checkpoints = scene, params, checkpoints
+        self._params, self._checkpoints = params, checkpoints
         return self.final_positions()
 
     def final_positions(self) -> np.ndarray:
