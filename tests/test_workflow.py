@@ -10,14 +10,7 @@ import pandas as pd
 import pytest
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-SNAKEMAKE = [sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile")]
-TINY = ROOT / "tests" / "data" / "tiny.yaml"
-
-
-def snakemake(workdir, *args, config=TINY):
-    return subprocess.run([*SNAKEMAKE, "--directory", str(workdir), "--configfile", str(config), *args],
-                          capture_output=True, text=True)
+from conftest import ROOT, TINY, snakemake
 
 
 def bad_config(tmp_path, edit):
@@ -70,16 +63,6 @@ def test_changing_one_stage_parameter_reruns_only_what_depends_on_it(tiny_run, t
     rerun = set(run.stdout.split())
     assert {"fill", "targets", "prepare", "identify"} <= rerun
     assert not {"twin_table", "twin_datapoint", "fuse", "mesh", "trajectory"} & rerun
-
-
-@pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
-    """`tables` and `figures` on the tiny twin, every job submitted through the generic cluster executor."""
-    workdir = tmp_path_factory.mktemp("workflow")
-    run = snakemake(workdir, "--executor", "cluster-generic", "--cluster-generic-submit-cmd", "bash",
-                    "--jobs", "1", "--latency-wait", "5", "--seconds-between-status-checks", "1", "tables", "figures")
-    assert run.returncode == 0, (run.stdout + run.stderr)[-4000:]
-    return workdir
 
 
 def test_tiny_workflow_makes_every_table(tiny_run):

@@ -139,3 +139,28 @@ wildcard_constraints:
     seed=r"\d+",
     loss="[a-z_]+",
     dataset="[0-9a-z-]+",
+
+
+ANALYSES = config.get("analyses", {})
+ANALYSIS_TABLES = []
+ANALYSIS_FIGURES = []
+"""Outputs of the analyses in the config; each analysis rule file adds its own, reporting.smk collects them."""
+
+
+def parameter_source_inputs(source):
+    """Files a parameter source (see dpsi.parameter_sources) is resolved from: the twin's truth for
+    `truth`, the level-2 run summaries of the main sweep for `identified`."""
+    if source == "truth":
+        if "twin" not in config:
+            raise WorkflowError(
+                "parameters `truth` need a synthetic twin: add a `twin` section to the config or choose "
+                "`hand-picked`, `identified` or explicit values"
+            )
+        return truth_file()
+    if source == "identified":
+        if 2 not in IDENT["levels"]:
+            raise WorkflowError(
+                "parameters `identified` need level 2 in identification.levels"
+            )
+        return runs(level=2)
+    return []

@@ -1,4 +1,5 @@
-"""The paper's tables and figures, and the target rules `tables`, `figures` and `all`."""
+"""The paper's tables and figures, and the target rules `tables`, `figures`, `analyses` and `all`
+(`tables` and `figures` include those of the analyses in the config)."""
 
 
 rule make_tables:
@@ -81,18 +82,27 @@ rule make_figures:
 rule tables:
     input:
         rules.make_tables.output,
+        ANALYSIS_TABLES,
     localrule: True
 
 
 rule figures:
     input:
         rules.make_figures.output,
+        ANALYSIS_FIGURES,
+    localrule: True
+
+
+rule analyses:
+    input:
+        ANALYSIS_TABLES,
+        ANALYSIS_FIGURES,
     localrule: True
 
 
 rule all:
     default_target: True
     input:
-        rules.make_tables.output,
-        rules.make_figures.output,
+        rules.tables.input,
+        rules.figures.input,
     localrule: True

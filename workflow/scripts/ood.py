@@ -7,6 +7,7 @@ import numpy as np
 
 from dpsi.datapoint import load_datapoint
 from dpsi.heightmap import height_map, heightmap_distance_mm
+from dpsi.parameter_sources import best_run
 from dpsi.parameters import HAND_PICKED, Parameters
 from dpsi.pointclouds import atomic_output
 from dpsi.provenance import recorded
@@ -14,12 +15,8 @@ from dpsi.reporting.tables import HAND_PICKED_LABEL
 from dpsi.simulation import Simulator, SimulatorConfig
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]) as log:
-    summaries = [json.loads(open(f).read()) for f in snakemake.input.summaries]
-    bests = [s["best"] for s in summaries if s.get("best")]
-    if snakemake.input.summaries and not bests:
-        raise RuntimeError(f"no run of {snakemake.input.summaries} has a best iteration")
-    if bests:
-        best = min(bests, key=lambda b: b["validation"]["heightmap_mm"])
+    if snakemake.input.summaries:
+        best = best_run([json.loads(open(f).read()) for f in snakemake.input.summaries])
         params, loss, dataset = Parameters.checked(**best["parameters"]), snakemake.wildcards.loss, snakemake.wildcards.dataset
     else:
         params, loss, dataset = HAND_PICKED, HAND_PICKED_LABEL, ""

@@ -1,0 +1,57 @@
+"""Where an analysis takes its fixed parameters θ from: a name in the config, resolved to values.
+
+- ``"hand-picked"``: :data:`~dpsi.parameters.HAND_PICKED`;
+- ``"truth"``: the synthetic twin's ground truth of a material (``truth.json``, :func:`dpsi.twin.read_truth`);
+- ``"identified"``: the best iteration (lowest validation height-map distance) among run summaries;
+- a mapping of some parameter names to values: those values, the others hand-picked.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from dpsi.parameters import HAND_PICKED, Parameters
+
+SOURCES = ("hand-picked", "truth", "identified")
+
+
+def best_run(summaries: Sequence[Mapping]) -> dict:
+    """The ``best`` entry (iteration, parameters, validation) with the lowest validation height-map
+    distance among run summaries (``summary.json`` contents); ``ValueError`` if no run has a best."""
+    bests = [s["best"] for s in summaries if s.get("best")]
+    if not bests:
+        raise ValueError(f"none of the {len(summaries)} run summaries has a best iteration "
+                         "(every iteration was skipped); rerun them or choose other parameters")
+    return min(bests, key=lambda b: b["validation"]["heightmap_mm"])
+
+
+def resolve(source: str | Mapping[str, float], truth_root: str | os.PathLike | None = None,
+            summaries: Sequence[str | os.PathLike] = (), material: str = "clay") -> Parameters:
+    """The parameters named by ``source`` (see the module doc). ``truth_root`` is the twin's raw folder
+    (needed for ``"truth"``), ``summaries`` the run summary files (needed for ``"identified"``)."""
+    if isinstance(source, Mapping):
+        return HAND_PICKED.replace(**source)
+    if source == "hand-picked":
+        return HAND_PICKED
+    if source == "truth":
+        if truth_root is None:
+            raise ValueError("parameters 'truth' need a synthetic twin (a `twin` section in the config); "
+                             "real captures have no ground truth")
+        from dpsi.twin import read_truth
+
+        materials = read_truth(truth_root)[0]
+        if material not in materials:
+            raise ValueError(f"the twin's truth has no material {material!r}; it has {sorted(materials)}")
+        return materials[material]
+    if source == "identified":
+        if not summaries:
+            raise ValueError("parameters 'identified' need identification runs; none were given")
+        best = best_run([json.loads(Path(p).read_text()) for p in summaries])
+        return Parameters.checked(**best["parameters"])
+    raise ValueError(f"unknown parameter source {source!r}; use one of {list(SOURCES)} or a mapping of values")
+
+
+__all__ = ["SOURCES", "best_run", "resolve"]

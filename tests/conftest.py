@@ -1,0 +1,28 @@
+"""Shared fixtures: the tiny end-to-end workflow run, used by the workflow and the analysis tests."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SNAKEMAKE = [sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile")]
+TINY = ROOT / "tests" / "data" / "tiny.yaml"
+
+
+def snakemake(workdir, *args, config=TINY):
+    """Run Snakemake on the project's Snakefile in ``workdir`` with ``config``."""
+    return subprocess.run([*SNAKEMAKE, "--directory", str(workdir), "--configfile", str(config), *args],
+                          capture_output=True, text=True)
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory):
+    """`tables` and `figures` (the analyses included) on the tiny twin, every job submitted through the
+    generic cluster executor, so that nothing can rely on shared process state."""
+    workdir = tmp_path_factory.mktemp("workflow")
+    run = snakemake(workdir, "--executor", "cluster-generic", "--cluster-generic-submit-cmd", "bash",
+                    "--jobs", "1", "--latency-wait", "5", "--seconds-between-status-checks", "1", "tables", "figures")
+    assert run.returncode == 0, (run.stdout + run.stderr)[-4000:]
+    return workdir
