@@ -1,5 +1,6 @@
 """Shared fixtures: the tiny end-to-end workflow run, used by the workflow and the analysis tests."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -20,8 +21,10 @@ def snakemake(workdir, *args, config=TINY):
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory):
     """`tables` and `figures` (the analyses included) on the tiny twin, every job submitted through the
-    generic cluster executor, so that nothing can rely on shared process state."""
-    workdir = tmp_path_factory.mktemp("workflow")
+    generic cluster executor, so that nothing can rely on shared process state. With the environment
+    variable DPSI_TINY_RUN set to a folder, the run completes that folder instead of a new one (for working
+    on one analysis without rerunning the rest)."""
+    workdir = Path(os.environ["DPSI_TINY_RUN"]) if "DPSI_TINY_RUN" in os.environ else tmp_path_factory.mktemp("workflow")
     run = snakemake(workdir, "--executor", "cluster-generic", "--cluster-generic-submit-cmd", "bash",
                     "--jobs", "1", "--latency-wait", "5", "--seconds-between-status-checks", "1", "tables", "figures")
     assert run.returncode == 0, (run.stdout + run.stderr)[-4000:]
