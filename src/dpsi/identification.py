@@ -63,7 +63,7 @@ def targets(dp: Datapoint) -> Targets:
 def evaluate(simulator: Simulator, dp: Datapoint, params: Parameters) -> dict[str, float]:
     """Simulate ``dp`` with ``params`` and return its five validation metrics (mm); raises
     :class:`SimulationError` if the simulation fails."""
-    final = simulator.forward(dp.scene(), params)
+    final = simulator.forward(dp.scene(), params, keep_substeps=False)
     return validation_metrics(final, dp.pcd_target, dp.prt_target, dp.heightmap, dp.centre_xy, dp.table_z)
 
 

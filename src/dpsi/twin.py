@@ -288,7 +288,7 @@ def generate_datapoint(root: str | os.PathLike, datapoint_id: str) -> Path:
     lo, hi = before.get_min_bound(), before.get_max_bound()
     waypoints = plan(get_motion(row.motion), int(plan_seed), start_xyz=[*(lo[:2] + hi[:2]) / 2, hi[2]])
     scene = Scene(particles, 1.0 / density, by_name(row.effector), resample(waypoints), waypoints.xyz[0], TABLE_Z)
-    final = simulator(config).forward(scene, materials[row.material])
+    final = simulator(config).forward(scene, materials[row.material], keep_substeps=False)
     after = _table_clamped(particles_to_mesh(final, spacing, name=f"{datapoint_id} after"), TABLE_Z)
     centre_xy = scene.centre_xy
     truth = GroundTruth(datapoint_id, row.material, materials[row.material], 1.0 / density, TABLE_Z,

@@ -24,7 +24,7 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
     records, finals = [], {}
     for path in snakemake.input.datapoints:
         dp = load_datapoint(path)
-        final = simulator.forward(dp.scene(), params)
+        final = simulator.forward(dp.scene(), params, keep_substeps=False)
         distance = heightmap_distance_mm(height_map(final, dp.centre_xy, floor=dp.table_z), dp.heightmap)
         records.append({"motion": dp.motion, "config": dp.id, "loss": loss, "dataset": dataset,
                         "parameters": params.as_dict(), "heightmap_mm": distance})

@@ -28,7 +28,9 @@ class SimulatorConfig:
     ``width`` centred on the object, z spans ``height`` above the table (plus three cells below).
     cfl: Courant number for the elastic wave speed; the substep count of a 0.01 s step is
     ceil(step_dt · c(θ) / (cfl · dx)), so every parameter value in range gets a stable step.
-    max_particles / max_steps: capacities allocated once.
+    max_particles / max_steps: capacities allocated once. substep_memory_mb: memory the forward pass
+    may spend on keeping every substep's particle state, so that the backward pass need not recompute
+    them from the per-step checkpoints (short motions fit; longer ones recompute).
     """
 
     dx: float = 0.006
@@ -40,6 +42,7 @@ class SimulatorConfig:
     max_steps: int = 700
     step_dt: float = 0.01
     arch: str = "cpu"
+    substep_memory_mb: float = 1200.0
     serial: bool = True
     """Run particle and grid loops on one thread: on small scenes this avoids the ~80 µs cost of
     starting a parallel loop, which dominates when each loop does only a few hundred µs of work."""
