@@ -10,7 +10,12 @@ rule ood_identified:
         ),
         datapoints=prepared(ood_ids()) if 2 in IDENT["levels"] else [],
         code=library(
-            "identification", "simulation", "losses", "parameters", "datapoint"
+            "identification",
+            "simulation",
+            "losses",
+            "parameters",
+            "datapoint",
+            "reporting/frames",
         ),
     output:
         records=f"{RESULTS}/ood/{{loss}}/{{dataset}}.json",
@@ -35,7 +40,12 @@ rule ood_hand_picked:
         summaries=[],
         datapoints=prepared(ood_ids()) if 2 in IDENT["levels"] else [],
         code=library(
-            "identification", "simulation", "losses", "parameters", "datapoint"
+            "identification",
+            "simulation",
+            "losses",
+            "parameters",
+            "datapoint",
+            "reporting/frames",
         ),
     output:
         records=f"{RESULTS}/ood/hand-picked.json",

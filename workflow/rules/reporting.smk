@@ -63,7 +63,7 @@ rule make_figures:
                 caption=f"../report/{kind}.rst",
                 category="Figures",
             )
-            for kind in ("heightmaps", "particles")
+            for kind in ("heightmaps", "particles", "frames")
             for i in (ood_ids() if 2 in IDENT["levels"] else [])
             for suffix in ("png", "pdf")
         ],

@@ -1,5 +1,6 @@
 """Figures: validation metrics and parameters over iterations per level; height maps and particles of
-the out-of-distribution datapoints simulated with the first (loss, dataset)'s best parameters."""
+the out-of-distribution datapoints simulated with the first (loss, dataset)'s best parameters, and their
+frames along the trajectory next to the hand-picked parameters' and the real captures."""
 
 from pathlib import Path
 
@@ -8,7 +9,7 @@ import pandas as pd
 
 from dpsi.datapoint import load_datapoint
 from dpsi.provenance import recorded
-from dpsi.reporting import figures
+from dpsi.reporting import figures, frames
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
     logs = []
@@ -23,9 +24,13 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
     if snakemake.input.ood:
         identified = [f for f in snakemake.input.ood if not f.endswith("hand-picked.json")][0]
         label = " / ".join(Path(identified).with_suffix("").parts[-2:])
-        with np.load(identified[:-5] + ".npz") as finals:
+        hand_picked = [f for f in snakemake.input.ood if f.endswith("hand-picked.json")][0]
+        with np.load(identified[:-5] + ".npz") as finals, np.load(hand_picked[:-5] + ".npz") as baseline:
             for path in snakemake.input.datapoints:
                 dp = load_datapoint(path)
                 for kind, plot in (("heightmaps", figures.plot_heightmaps), ("particles", figures.plot_particles)):
                     png = str(Path(snakemake.output.ood[0]).parent / f"{kind}_{dp.id}.png")
                     plot(dp, finals[dp.id], png, png[:-4] + ".pdf", title=f"{dp.id}, best level-2 θ of {label}")
+                png = str(Path(snakemake.output.ood[0]).parent / f"frames_{dp.id}.png")
+                simulated = {"hand-picked": baseline[f"{dp.id}.frames"], label: finals[f"{dp.id}.frames"]}
+                frames.plot_frames(dp, simulated, finals[f"{dp.id}.steps"], png, png[:-4] + ".pdf")

@@ -1,5 +1,7 @@
 """Out-of-distribution motions simulated with the best level-2 parameters of one (loss, dataset) across
-seeds, or with the hand-picked parameters when the rule gives no run summaries."""
+seeds, or with the hand-picked parameters when the rule gives no run summaries: height-map distances,
+and per datapoint the final particles (key <id>) and frames along the trajectory (<id>.frames at the
+steps <id>.steps)."""
 
 import json
 
@@ -11,6 +13,7 @@ from dpsi.parameter_sources import best_run
 from dpsi.parameters import HAND_PICKED, Parameters
 from dpsi.pointclouds import atomic_output
 from dpsi.provenance import recorded
+from dpsi.reporting.frames import frame_steps
 from dpsi.reporting.tables import HAND_PICKED_LABEL
 from dpsi.simulation import Simulator, SimulatorConfig
 
@@ -29,6 +32,8 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
         records.append({"motion": dp.motion, "config": dp.id, "loss": loss, "dataset": dataset,
                         "parameters": params.as_dict(), "heightmap_mm": distance})
         finals[dp.id] = final
+        steps = frame_steps(dp.trajectory.n_steps)
+        finals[f"{dp.id}.steps"], finals[f"{dp.id}.frames"] = steps, simulator.positions_at(steps)
         log.info("%s: height-map distance %.1f mm", dp.id, distance)
     with atomic_output(snakemake.output.records) as tmp:
         tmp.write_text(json.dumps(records, indent=1))

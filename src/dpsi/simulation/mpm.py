@@ -252,21 +252,32 @@ class Simulator:
     # Particle-grid transfers have hand-written adjoints: Taichi's reverse mode of the unrolled
     # 27-node loop takes minutes to compile, and that of a rolled loop runs 13 times slower.
     @ti.func
-    def stencil_node(self, x, offset):
-        """Grid node at ``offset`` (0..2 per axis) of the 3×3×3 stencil of position ``x``: its index,
-        quadratic B-spline weight, offset from the particle (m), and the weight's gradient with respect
-        to x (1/m)."""
+    def stencil(self, x):
+        """The 3×3×3 stencil of position ``x``: its base node, the particle's offset fx from it (cells),
+        and per node offset o (rows) and axis (columns) the quadratic B-spline weight of d = o − fx and
+        its derivative with respect to d. Computed once per particle, used for all 27 nodes."""
         X = (x - self.origin[None]) * self.inv_dx
         base = ti.min(ti.max(ti.cast(X - 0.5, ti.i32), 0), ti.Vector(self.grid_shape) - 3)
-        d = offset.cast(ti.f64) - (X - base.cast(ti.f64))
-        w = ti.Vector([0.0, 0.0, 0.0])
-        dw = ti.Vector([0.0, 0.0, 0.0])  # d w_a / d d_a
-        for a in ti.static(range(3)):
-            middle = offset[a] == 1
-            w[a] = ti.select(middle, 0.75 - d[a] ** 2, 0.5 * (1.5 - ti.abs(d[a])) ** 2)
-            dw[a] = ti.select(middle, -2.0 * d[a], -(1.5 - ti.abs(d[a])) * ti.math.sign(d[a]))
-        grad_w = -self.inv_dx * ti.Vector([dw[0] * w[1] * w[2], w[0] * dw[1] * w[2], w[0] * w[1] * dw[2]])
-        return base + offset, w[0] * w[1] * w[2], d * self.dx, grad_w
+        fx = X - base.cast(ti.f64)
+        W = ti.Matrix.zero(ti.f64, 3, 3)
+        D = ti.Matrix.zero(ti.f64, 3, 3)
+        for o, a in ti.static(ti.ndrange(3, 3)):
+            d = o - fx[a]
+            if ti.static(o == 1):
+                W[o, a], D[o, a] = 0.75 - d ** 2, -2.0 * d
+            else:
+                W[o, a], D[o, a] = 0.5 * (1.5 - ti.abs(d)) ** 2, -(1.5 - ti.abs(d)) * ti.math.sign(d)
+        return base, fx, W, D
+
+    @ti.func
+    def stencil_node(self, base, fx, W, D, i: ti.template(), j: ti.template(), k: ti.template()):
+        """Node (i, j, k) of a :meth:`stencil`: its index, weight, offset from the particle (m), and the
+        weight's gradient with respect to the particle position (1/m)."""
+        w = W[i, 0] * W[j, 1] * W[k, 2]
+        grad_w = -self.inv_dx * ti.Vector([D[i, 0] * W[j, 1] * W[k, 2], W[i, 0] * D[j, 1] * W[k, 2],
+                                           W[i, 0] * W[j, 1] * D[k, 2]])
+        offset = ti.Vector([i, j, k])
+        return base + offset, w, (offset.cast(ti.f64) - fx) * self.dx, grad_w
 
     @ti.kernel
     def particle_to_grid(self, s: ti.i32):
@@ -274,8 +285,9 @@ class Simulator:
         ti.loop_config(serialize=self.serial)
         for p in range(self.n_particles[None]):
             mass, v, A = self.particle_mass[None], self.v[s, p], self.affine[p]
+            base, fx, W, D = self.stencil(self.x[s, p])
             for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
-                node, w, dpos, _ = self.stencil_node(self.x[s, p], ti.Vector([i, j, k]))
+                node, w, dpos, _ = self.stencil_node(base, fx, W, D, i, j, k)
                 self.grid_p[node] += w * (mass * v + A @ dpos)
                 self.grid_m[node] += w * mass
 
@@ -286,8 +298,9 @@ class Simulator:
             mass, v, A = self.particle_mass[None], self.v[s, p], self.affine[p]
             x_bar, v_bar, m_bar = ti.Vector.zero(ti.f64, 3), ti.Vector.zero(ti.f64, 3), 0.0
             A_bar = ti.Matrix.zero(ti.f64, 3, 3)
+            base, fx, W, D = self.stencil(self.x[s, p])
             for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
-                node, w, dpos, grad_w = self.stencil_node(self.x[s, p], ti.Vector([i, j, k]))
+                node, w, dpos, grad_w = self.stencil_node(base, fx, W, D, i, j, k)
                 p_bar, m_node_bar = self.grid_p.grad[node], self.grid_m.grad[node]
                 v_bar += w * mass * p_bar
                 A_bar += w * p_bar.outer_product(dpos)
@@ -305,8 +318,9 @@ class Simulator:
         for p in range(self.n_particles[None]):
             v = ti.Vector.zero(ti.f64, 3)
             C = ti.Matrix.zero(ti.f64, 3, 3)
+            base, fx, W, D = self.stencil(self.x[s, p])
             for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
-                node, w, dpos, _ = self.stencil_node(self.x[s, p], ti.Vector([i, j, k]))
+                node, w, dpos, _ = self.stencil_node(base, fx, W, D, i, j, k)
                 v += w * self.grid_v[node]
                 C += (4.0 * self.inv_dx * self.inv_dx * w) * self.grid_v[node].outer_product(dpos)
             self.v_grid[p] = v
@@ -318,8 +332,9 @@ class Simulator:
         for p in range(self.n_particles[None]):
             v_bar, C_bar = self.v_grid.grad[p], self.C.grad[s + 1, p]
             x_bar = ti.Vector.zero(ti.f64, 3)
+            base, fx, W, D = self.stencil(self.x[s, p])
             for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
-                node, w, dpos, grad_w = self.stencil_node(self.x[s, p], ti.Vector([i, j, k]))
+                node, w, dpos, grad_w = self.stencil_node(base, fx, W, D, i, j, k)
                 g_v = self.grid_v[node]
                 scale = 4.0 * self.inv_dx * self.inv_dx
                 self.grid_v.grad[node] += w * v_bar + scale * w * (C_bar @ dpos)
@@ -650,6 +665,16 @@ class Simulator:
         if self._checkpoints is None:
             raise SimulationError("no simulation has run yet")
         return self._checkpoints[-1, :, :3].copy()
+
+    def positions_at(self, steps) -> np.ndarray:
+        """Particle positions (len(steps), n, 3) in m at the start of the given steps of the last
+        :meth:`forward` (step n_steps is the end of the trajectory)."""
+        if self._checkpoints is None:
+            raise SimulationError("no simulation has run yet")
+        steps = np.asarray(steps, dtype=int)
+        if steps.min() < 0 or steps.max() >= len(self._checkpoints):
+            raise ValueError(f"steps must lie in 0..{len(self._checkpoints) - 1}, got {steps.tolist()}")
+        return self._checkpoints[steps, :, :3].copy()
 
     def backward(self, grad_positions: np.ndarray) -> dict[str, float]:
         """Gradient of a scalar loss L with respect to θ, given dL/d(final positions) (n, 3) in 1/m
