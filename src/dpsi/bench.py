@@ -1,12 +1,13 @@
-"""Benchmarks that print figures (not timed tests).
+"""Benchmarks that print figures (not timed tests), and the measurement behind the cost table.
 
     python -m dpsi.bench simulator [--json] [--density 4e7] [--motions poking-1 ...]
     python -m dpsi.bench losses [--json] [--points 3000]
 
 The simulator benchmark runs each motion in a fresh process, so that peak memory is that motion's
-own: a lump of clay (6 × 4.8 × 2.8 cm, ~1950 particles at 4e7/m³ like the paper's poking datapoint) filled at the given particle density, the hand-picked
-parameters, the motion's own effector. It times the first forward pass (which compiles, unless Taichi's
-offline cache already holds the kernels), a second forward pass, the first and a second backward pass.
+own: a lump of clay (6 × 4.8 × 2.8 cm, ~1950 particles at 4e7/m³ like the paper's poking datapoint)
+filled at the given particle density, the hand-picked parameters, the motion's own effector. It times the
+first forward pass (which compiles, unless Taichi's offline cache already holds the kernels), the first
+backward pass, then forward + backward iterations, and says whether Taichi's offline cache was warm.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import resource
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -40,39 +42,89 @@ def bench_lump_particles(density: float) -> np.ndarray:
     return fill(lump(semi_axes=(0.03, 0.024), wall=0.012, top=0.028), density)
 
 
-def measure_simulation(motion: str, density: float, repeat: bool = True) -> dict:
-    """Time forward and backward passes of one motion in this process; see the module docstring."""
+def timed(call) -> float:
+    """Wall-clock time (s) of ``call()``."""
+    start = time.perf_counter()
+    call()
+    return time.perf_counter() - start
+
+
+def taichi_cache_folder() -> Path | None:
+    """Folder of Taichi's offline kernel cache in this (initialised) process; None when the cache is off."""
+    from taichi.lang import impl
+
+    config = impl.current_cfg()
+    return Path(config.offline_cache_file_path) if config.offline_cache else None
+
+
+def cached_kernels(folder: Path | None) -> frozenset[str]:
+    """Names of the compiled-kernel files in the offline cache ``folder`` (empty when there is none)."""
+    return frozenset(p.name for p in folder.glob("*.tic")) if folder and folder.is_dir() else frozenset()
+
+
+def finish_taichi(folder: Path | None, before: frozenset[str]) -> str:
+    """Finalise Taichi — which writes the kernels this process compiled to the offline cache — and say how
+    the cache served the process: "off", "warm" (no kernel compiled: all came from the cache) or "cold"
+    (some kernels compiled). Taichi cannot be used in this process afterwards. Another Taichi process
+    ending meanwhile and adding kernels to the same cache makes a warm run look cold."""
+    import taichi as ti
+
+    ti.reset()
+    if folder is None:
+        return "off"
+    return "cold" if cached_kernels(folder) - before else "warm"
+
+
+def measure_simulation(motion: str, density: float, iterations: int, config) -> dict:
+    """Time and measure one motion on the benchmark lump in this process (see the module docstring).
+
+    Order: the peak resident memory before the simulator exists (``base_peak_rss_mb``, MiB: Python,
+    Taichi, and open3d and pymeshlab for filling the lump), the first (compiling) forward pass, the peak
+    resident memory so far (``forward_peak_rss_mb``,
+    MiB: before any backward pass), the first backward pass, then ``iterations`` forward + backward
+    iterations (each with the same seed gradient, no loss), then the peak memory of the whole process
+    (``peak_rss_mb``, MiB). ``forward_s`` and ``backward_s`` are means over the iterations (s),
+    ``iteration_s`` the time of each iteration (s), ``compile_s`` how much longer the first passes took.
+    ``config``: the :class:`~dpsi.simulation.SimulatorConfig`.
+
+    Finalises Taichi at the end to learn whether its offline cache was warm (``taichi_cache``), so this
+    must be the last Taichi work of the process."""
     from .effectors import by_name
     from .motions import trajectory
     from .parameters import HAND_PICKED
-    from .simulation import Scene, Simulator, SimulatorConfig
+    from .simulation import Scene, Simulator
 
     particles = bench_lump_particles(density)
     traj = trajectory(motion)
     start = [*(0.5 * (particles[:, :2].min(0) + particles[:, :2].max(0))), particles[:, 2].max()]
     scene = Scene(particles, 1.0 / density, by_name(BENCH_MOTIONS[motion]), traj, start)
-    sim = Simulator(SimulatorConfig())
+    base_rss = peak_rss_mb()
+    sim = Simulator(config)
+    cache = taichi_cache_folder()
+    kernels_before = cached_kernels(cache)
     seed = np.random.default_rng(0).normal(size=particles.shape)
+    forward_pass = lambda: sim.forward(scene, HAND_PICKED)  # noqa: E731
+    backward_pass = lambda: sim.backward(seed)  # noqa: E731
 
-    def timed(call):
-        start_time = time.perf_counter()
-        call()
-        return time.perf_counter() - start_time
+    first_forward = timed(forward_pass)
+    forward_rss = peak_rss_mb()
+    first_backward = timed(backward_pass)
+    passes = np.array([(timed(forward_pass), timed(backward_pass)) for _ in range(iterations)])
+    forward, backward = map(float, passes.mean(axis=0))
+    record = {"motion": motion, "density": density, "particles": len(particles), "steps": traj.n_steps,
+              "substeps": sim.substeps, "first_forward_s": first_forward, "first_backward_s": first_backward,
+              "forward_s": forward, "backward_s": backward,
+              "compile_s": max(0.0, first_forward - forward) + max(0.0, first_backward - backward),
+              "iteration_s": passes.sum(axis=1).tolist(), "base_peak_rss_mb": base_rss,
+              "forward_peak_rss_mb": forward_rss, "peak_rss_mb": peak_rss_mb()}
+    return {**record, "taichi_cache": finish_taichi(cache, kernels_before)}
 
-    first_forward = timed(lambda: sim.forward(scene, HAND_PICKED))
-    first_backward = timed(lambda: sim.backward(seed))
-    forward = timed(lambda: sim.forward(scene, HAND_PICKED)) if repeat else first_forward
-    backward = timed(lambda: sim.backward(seed)) if repeat else first_backward
-    return {"motion": motion, "particles": len(particles), "steps": traj.n_steps, "substeps": sim.substeps,
-            "compile_s": max(0.0, first_forward - forward) + max(0.0, first_backward - backward),
-            "forward_s": forward, "backward_s": backward, "first_forward_s": first_forward,
-            "first_backward_s": first_backward, "peak_rss_mb": peak_rss_mb(), "density": density}
 
-
-def run_isolated(motion: str, density: float) -> dict:
-    """:func:`measure_simulation` in a child process (so its peak memory is its own)."""
-    out = subprocess.run([sys.executable, "-m", "dpsi.bench", "_one", motion, str(density)],
-                         capture_output=True, text=True)
+def run_isolated(motion: str, density: float, iterations: int = 1, simulator: dict | None = None) -> dict:
+    """:func:`measure_simulation` in a child process that runs nothing else, so that its peak memory is the
+    measurement's own. ``simulator``: :class:`~dpsi.simulation.SimulatorConfig` settings (defaults if None)."""
+    out = subprocess.run([sys.executable, "-m", "dpsi.bench", "_one", motion, str(density), "--iterations",
+                          str(iterations), "--simulator", json.dumps(simulator or {})], capture_output=True, text=True)
     if out.returncode != 0:
         raise RuntimeError(f"benchmark of {motion} failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -103,16 +155,21 @@ def main(argv=None) -> None:
     one = sub.add_parser("_one")  # internal: one motion in this process
     one.add_argument("motion")
     one.add_argument("density", type=float)
+    one.add_argument("--iterations", type=int, default=1)
+    one.add_argument("--simulator", default="{}", help="SimulatorConfig settings as JSON")
     args = parser.parse_args(argv)
 
     if args.what == "_one":
-        print(json.dumps(measure_simulation(args.motion, args.density)))
+        from .simulation import SimulatorConfig
+
+        config = SimulatorConfig(**json.loads(args.simulator))
+        print(json.dumps(measure_simulation(args.motion, args.density, args.iterations, config)))
     elif args.what == "simulator":
         records = [run_isolated(m, args.density) for m in args.motions]
         if args.json:
             print(json.dumps(records))
         else:
-            print_table(records, (*SIMULATOR_KEYS, "first_forward_s", "first_backward_s"))
+            print_table(records, (*SIMULATOR_KEYS, "first_forward_s", "first_backward_s", "taichi_cache"))
     else:
         from .losses import bench_emd
 

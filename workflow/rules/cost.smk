@@ -1,1 +1,72 @@
-"""Placeholder: filled in by the cost analysis."""
+"""Computation cost table (SPEC §7.6): one timing job per (motion, density), each measuring in a child
+process of its own so that its peak memory is the measurement's own, then the table. Timing jobs ask for
+one unit of the custom resource `timing`: run with `--resources timing=1` so that no two of them run at
+the same time.
+"""
+
+if "cost" in ANALYSES:
+    COST = ANALYSES["cost"]
+    COST_RECORDS = [
+        f"results/cost/{motion}/density{density:g}.json"
+        for motion in COST["motions"]
+        for density in COST["densities"]
+    ]
+
+    rule cost_measure:
+        input:
+            code=library(
+                "bench",
+                "simulation",
+                "shapes",
+                "reconstruction",
+                "motions",
+                "effectors",
+                "parameters",
+            ),
+        output:
+            "results/cost/{motion}/density{density}.json",
+        log:
+            "logs/cost/{motion}_density{density}.log",
+        wildcard_constraints:
+            motion="|".join(COST["motions"]),
+            density=r"[0-9.]+(e[+-]?[0-9]+)?",
+        conda:
+            "../envs/dpsi.yaml"
+        threads: 1
+        resources:
+            mem_mb=4000,
+            runtime=30 + 5 * COST["measured_iterations"],
+            gpu=1 if config.get("taichi_arch") == "cuda" else 0,
+            timing=1,
+        params:
+            measured_iterations=COST["measured_iterations"],
+            simulator=simulator_params(),
+        script:
+            "../scripts/cost_measure.py"
+
+    rule cost_table:
+        input:
+            records=COST_RECORDS,
+            code=library("reporting/cost", "reporting/tables"),
+        output:
+            csv=report(
+                "results/tables/cost.csv",
+                caption="../report/cost.rst",
+                category="Tables",
+            ),
+            md="results/tables/cost.md",
+            tex="results/tables/cost.tex",
+        log:
+            "logs/cost/table.log",
+        conda:
+            "../envs/dpsi.yaml"
+        threads: 1
+        resources:
+            mem_mb=1000,
+            runtime=5,
+        params:
+            iterations=COST["iterations"],
+        script:
+            "../scripts/cost_table.py"
+
+    ANALYSIS_TABLES += rules.cost_table.output

@@ -1,0 +1,77 @@
+"""The computation cost table (SPEC §7.6): its assembly from measurement records, and the tiny workflow's."""
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from dpsi.bench import cached_kernels
+from dpsi.reporting.cost import COLUMNS, cost_table, iterations_total
+
+from conftest import TINY
+
+
+def record(motion="poking-1", density=4e7, iteration_s=(3.0, 5.0)):
+    """A made-up measurement record with the keys of dpsi.bench.measure_simulation."""
+    return dict(motion=motion, density=density, particles=2000, steps=87, substeps=17, taichi_cache="warm",
+                first_forward_s=9.0, forward_s=1.5, first_backward_s=12.0, backward_s=2.5, compile_s=17.0,
+                iteration_s=list(iteration_s), base_peak_rss_mb=300.0, forward_peak_rss_mb=900.0, peak_rss_mb=1100.0)
+
+
+def test_total_of_fewer_measured_iterations_is_extrapolated_and_says_so():
+    assert iterations_total([3.0, 5.0], 100) == (400.0, "extrapolated from 2 iterations")
+    assert iterations_total([2.0], 100) == (200.0, "extrapolated from 1 iteration")
+
+
+def test_total_of_enough_measured_iterations_is_their_sum():
+    assert iterations_total([1.0, 2.0, 3.0], 3) == (6.0, "measured")
+    assert iterations_total([1.0, 2.0, 30.0], 2) == (3.0, "measured")
+
+
+def test_total_needs_a_measured_iteration():
+    with pytest.raises(ValueError, match="no measured iteration"):
+        iterations_total([], 100)
+
+
+def test_cost_table_has_one_row_per_record_with_memory_and_extrapolated_total():
+    table = cost_table([record(), record("flattening", 8e7, (10.0,))], iterations=100)
+    assert list(table.columns) == list(COLUMNS)
+    assert list(zip(table.motion, table.density)) == [("poking-1", 4e7), ("flattening", 8e7)]
+    first = table.iloc[0]
+    assert (first.base_mem_mib, first.forward_mem_mib, first.backward_mem_mib) == (300.0, 900.0, 1100.0)
+    assert (first.forward_s, first.backward_s, first.first_forward_s) == (1.5, 2.5, 9.0)
+    assert first.iterations == 100
+    assert first.total_min == pytest.approx(4.0 * 100 / 60)
+    assert list(table.total_label) == ["extrapolated from 2 iterations", "extrapolated from 1 iteration"]
+    assert table.iloc[1].total_min == pytest.approx(10.0 * 100 / 60)
+
+
+def test_cached_kernels_lists_the_kernel_files_of_the_cache(tmp_path):
+    (tmp_path / "Tabc.tic").write_text("")
+    (tmp_path / "ticache.tcb").write_text("")
+    assert cached_kernels(tmp_path) == {"Tabc.tic"}
+    assert cached_kernels(None) == frozenset()
+    assert cached_kernels(tmp_path / "missing") == frozenset()
+
+
+def test_tiny_workflow_makes_the_cost_table(tiny_run):
+    settings = yaml.safe_load(TINY.read_text())["analyses"]["cost"]
+    tables = tiny_run / "results" / "tables"
+    table = pd.read_csv(tables / "cost.csv")
+    assert all((tables / f"cost.{suffix}").stat().st_size > 0 for suffix in ("md", "tex"))
+    assert list(table.columns) == list(COLUMNS)
+    expected = {(m, float(d)) for m in settings["motions"] for d in settings["densities"]}
+    assert set(zip(table.motion, table.density)) == expected and len(table) == len(expected)
+    numbers = table[["particles", "steps", "substeps", "base_mem_mib", "first_forward_s", "forward_s",
+                     "forward_mem_mib", "first_backward_s", "backward_s", "backward_mem_mib", "total_min"]].to_numpy(float)
+    assert np.isfinite(numbers).all() and (numbers > 0).all()
+    assert (table.backward_mem_mib >= table.forward_mem_mib).all()
+    assert (table.forward_mem_mib >= table.base_mem_mib).all()
+    assert set(table.taichi_cache) <= {"warm", "cold", "off"}
+    assert (table.iterations == settings["iterations"]).all()
+    n = settings["measured_iterations"]
+    label = "measured" if n >= settings["iterations"] else f"extrapolated from {n} iteration{'s' * (n > 1)}"
+    assert (table.total_label == label).all()
+    if n < settings["iterations"]:  # extrapolated: the mean measured iteration is the mean forward + backward
+        per_iteration = table.total_min * 60 / settings["iterations"]
+        assert np.allclose(per_iteration, table.forward_s + table.backward_s, rtol=1e-6)
