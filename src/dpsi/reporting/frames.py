@@ -50,14 +50,17 @@ def plot_frames(datapoint: Datapoint, simulated: Mapping[str, np.ndarray], steps
     hi[2] = max(hi[2], tips[:, 2].max() + 2.0)
     depth = colors.Normalize(lo[1], hi[1])
 
-    fig = new_figure(2.6 * len(steps) + 1.0, 2.1 * len(rows) + 0.8)
+    floor = datapoint.table_z * MM_PER_M - 2.0
+    panel = 2.6  # inches per panel width; the height follows the data's aspect
+    aspect = (hi[2] - floor) / (hi[0] - lo[0])
+    fig = new_figure(panel * len(steps) + 1.0, (panel * aspect + 0.55) * len(rows) + 0.7)
     axes = fig.subplots(len(rows), len(steps), sharex=True, sharey=True, squeeze=False)
     for r, (label, frames) in enumerate(rows):
         for c, step in enumerate(steps):
             ax = axes[r, c]
             if c in frames:
                 points = frames[c] * MM_PER_M
-                ax.scatter(points[:, 0], points[:, 2], c=points[:, 1], cmap="viridis", norm=depth, s=1.5,
+                ax.scatter(points[:, 0], points[:, 2], c=points[:, 1], cmap="viridis", norm=depth, s=3,
                            linewidths=0)
             else:
                 ax.text(0.5, 0.5, "not captured", transform=ax.transAxes, ha="center", va="center",
@@ -65,7 +68,7 @@ def plot_frames(datapoint: Datapoint, simulated: Mapping[str, np.ndarray], steps
             ax.plot(tips[: step + 1, 0], tips[: step + 1, 2], color="tab:red", linewidth=0.8)
             ax.plot(*tips[step, [0, 2]], marker="v", color="tab:red", markersize=5)
             ax.axhline(datapoint.table_z * MM_PER_M, color="black", linewidth=0.6)
-            ax.set(xlim=(lo[0], hi[0]), ylim=(datapoint.table_z * MM_PER_M - 2.0, hi[2]), aspect="equal")
+            ax.set(xlim=(lo[0], hi[0]), ylim=(floor, hi[2]), aspect="equal")
             if r == 0:
                 ax.set_title(f"step {step} ({step * datapoint.trajectory.dt:.2f} s)", fontsize=9)
             if r == len(rows) - 1:
