@@ -1,4 +1,18 @@
-"""Identification runs (SPEC §6): one job per (level, loss, dataset, seed), and the hand-picked baseline."""
+"""Identification runs (SPEC §6): one job per (level, loss, dataset, seed), and the hand-picked baseline.
+
+The analyses that are variations of identification runs (materials, minima, heightmap_losses) declare
+their runs with `analysis_runs` and get them from `identify_analysis`, the same job as `identify`
+with the material and the initial values as wildcards, under results/<dataset>/<analysis>/.
+"""
+
+
+include: "analysis_runs.smk"
+
+
+IDENTIFY_CODE = library(
+    "identification", "simulation", "losses", "optim", "parameters", "datapoint"
+)
+RUN_ANALYSES = [a for a in ("materials", "minima", "heightmap_losses") if a in ANALYSES]
 
 
 rule identify:
@@ -6,17 +20,10 @@ rule identify:
         training=lambda w: prepared(training_ids(w.level, w.dataset)),
         validation=lambda w: prepared(validation_ids(w.level)),
         truth=truth_file(),
-        code=library(
-            "identification",
-            "simulation",
-            "losses",
-            "optim",
-            "parameters",
-            "datapoint",
-        ),
+        code=IDENTIFY_CODE,
     output:
-        summary=f"{RESULTS}/runs/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}/summary.json",
-        log=f"{RESULTS}/runs/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}/log.csv",
+        summary=f"{MAIN_RUN}/summary.json",
+        log=f"{MAIN_RUN}/log.csv",
     log:
         f"logs/{config['dataset']}/identify/L{{level}}_{{loss}}_{{dataset}}_seed{{seed}}.log",
     conda:
@@ -32,6 +39,34 @@ rule identify:
         simulator=simulator_params(),
     script:
         "../scripts/identify.py"
+
+
+if RUN_ANALYSES:
+
+    use rule identify as identify_analysis with:
+        input:
+            training=lambda w: prepared(
+                dpsi_datasets.select(TABLE, int(w.level), w.dataset, w.material)
+            ),
+            validation=lambda w: prepared(
+                dpsi_datasets.validation(TABLE, int(w.level), w.material)
+            ),
+            # the script compares with the truth of clay: other materials get none in their summary
+            truth=lambda w: truth_file() if w.material == "clay" else [],
+            code=IDENTIFY_CODE,
+        output:
+            summary=f"{ANALYSIS_RUN}/summary.json",
+            log=f"{ANALYSIS_RUN}/log.csv",
+        log:
+            f"logs/{config['dataset']}/{{analysis}}/{{material}}_{{start}}_L{{level}}_{{loss}}_{{dataset}}_seed{{seed}}.log",
+        wildcard_constraints:
+            analysis="|".join(RUN_ANALYSES),
+            material="[a-z]+",
+            start="random|hand-picked",
+        params:
+            iterations=lambda w: ANALYSES[w.analysis]["iterations"],
+            initial=lambda w: w.start,
+            simulator=simulator_params(),
 
 
 rule validate_hand_picked:

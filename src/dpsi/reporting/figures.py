@@ -6,6 +6,8 @@ canvas without pyplot, so no GUI backend or global figure state is involved.
 
 from __future__ import annotations
 
+import textwrap
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -29,6 +31,9 @@ DPI = 150
 
 MM_PER_M = 1000.0
 
+TITLE_CHARS_PER_INCH = 8.5
+"""Characters of a figure title per inch of figure width, beyond which the title is wrapped."""
+
 METRIC_LABELS = {"pcd_cd": "PCD-CD (mm)", "prt_cd": "PRT-CD (mm)", "pcd_emd": "PCD-EMD (mm)",
                  "prt_emd": "PRT-EMD (mm)", "heightmap_mm": "height map (mm)"}
 """Axis label of each validation metric."""
@@ -38,8 +43,8 @@ PARAMETER_AXES = {"E": ("$E$ (kPa)", 1e-3), "nu": (r"$\nu$ (-)", 1.0), "rho": (r
                   "mu_effector": (r"$\mu_\mathrm{effector}$ (-)", 1.0)}
 """Axis label and the factor from the SI value to the plotted unit, per parameter."""
 
-RUN_KEYS = ("level", "loss", "dataset", "seed", "iteration")
-"""Columns that identify one point of one run in the table given to :func:`plot_runs`."""
+RUN_KEYS = ("level", "seed", "iteration")
+"""Columns that every table given to :func:`plot_runs` needs besides its column and colour keys."""
 
 
 def new_figure(width: float, height: float, layout: str | None = "constrained") -> Figure:
@@ -60,12 +65,13 @@ def save(fig: Figure, png_path: str | Path, pdf_path: str | Path) -> None:
             fig.savefig(tmp, format=fmt, dpi=DPI)
 
 
-def _check_runs(runs: pd.DataFrame, level: int) -> pd.DataFrame:
-    """The rows of ``level``, after checking the table has what :func:`plot_runs` needs."""
+def _check_runs(runs: pd.DataFrame, level: int, keys: tuple[str, ...]) -> pd.DataFrame:
+    """The rows of ``level``, after checking the table has what :func:`plot_runs` needs (``keys``: its
+    column and colour keys)."""
     if level not in IDENTIFIED:
         raise ValueError(f"unknown level {level}; levels are {sorted(IDENTIFIED)}")
-    needed = [*RUN_KEYS, *(f"val_{m}" for m in METRICS), *IDENTIFIED[level]]
-    missing = [c for c in needed if c not in runs.columns]
+    needed = [*RUN_KEYS, *keys, *(f"val_{m}" for m in METRICS), *IDENTIFIED[level]]
+    missing = [c for c in dict.fromkeys(needed) if c not in runs.columns]
     if missing:
         raise ValueError(f"runs table lacks column(s) {missing}")
     if runs.empty:
@@ -76,28 +82,35 @@ def _check_runs(runs: pd.DataFrame, level: int) -> pd.DataFrame:
     return rows
 
 
-def plot_runs(runs: pd.DataFrame, level: int, png_path: str | Path, pdf_path: str | Path) -> None:
+def plot_runs(runs: pd.DataFrame, level: int, png_path: str | Path, pdf_path: str | Path, columns: str = "dataset",
+              colours: str = "loss", title: str | None = None,
+              truth: Mapping[str, Mapping[str, float]] | None = None) -> None:
     """Validation metrics (mm) and identified parameters of ``level`` over the iterations.
 
-    ``runs`` holds the identification log columns plus level, loss, dataset and seed. One column per
-    dataset; one row per validation metric then per identified parameter (y-limits = its range); each
-    seed a thin dotted line, the mean over seeds a solid line, one colour per loss."""
-    rows = _check_runs(runs, level)
-    datasets, losses = list(pd.unique(rows["dataset"])), list(pd.unique(rows["loss"]))
+    ``runs`` holds the identification log columns plus level, seed and the keys ``columns`` and
+    ``colours``. One figure column per value of ``columns`` (default the dataset); one row per validation
+    metric then per identified parameter (y-limits = its range); each seed a thin dotted line, the mean
+    over seeds a solid line, one colour per value of ``colours`` (default the loss). ``truth``: known
+    parameter values (SI) per value of ``columns``, drawn as dashed black lines."""
+    rows = _check_runs(runs, level, (columns, colours))
+    panels, groups = list(pd.unique(rows[columns])), list(pd.unique(rows[colours]))
     quantities = [(f"val_{m}", METRIC_LABELS[m], 1.0) for m in METRICS]
     quantities += [(n, *PARAMETER_AXES[n]) for n in IDENTIFIED[level]]
-    colour = {loss: f"C{k}" for k, loss in enumerate(losses)}
+    colour = {group: f"C{k}" for k, group in enumerate(groups)}
 
-    fig = new_figure(2.0 + 3.0 * len(datasets), 1.0 + 1.45 * len(quantities))
-    axes = fig.subplots(len(quantities), len(datasets), sharex=True, sharey="row", squeeze=False)
-    for c, dataset in enumerate(datasets):
-        axes[0, c].set_title(str(dataset), fontsize="medium")
+    fig = new_figure(2.0 + 3.0 * len(panels), 1.0 + 1.45 * len(quantities))
+    axes = fig.subplots(len(quantities), len(panels), sharex=True, sharey="row", squeeze=False)
+    for c, panel in enumerate(panels):
+        axes[0, c].set_title(str(panel), fontsize="medium")
         axes[-1, c].set_xlabel("iteration")
-        for loss in losses:
-            one = rows[(rows["dataset"] == dataset) & (rows["loss"] == loss)]
+        for group in groups:
+            one = rows[(rows[columns] == panel) & (rows[colours] == group)]
             for r, (column, _, scale) in enumerate(quantities):
                 by_seed = one.pivot_table(index="iteration", columns="seed", values=column, dropna=False) * scale
-                _plot_seeds(axes[r, c], by_seed, colour[loss])
+                _plot_seeds(axes[r, c], by_seed, colour[group])
+        for r, (column, _, scale) in enumerate(quantities):
+            if truth and column in truth.get(panel, {}):
+                axes[r, c].axhline(truth[panel][column] * scale, color="black", linestyle="--", linewidth=1.0)
     first, last = rows["iteration"].min(), rows["iteration"].max()
     pad = 0.02 * (last - first) if last > first else 1.0
     axes[0, 0].set_xlim(first - pad, last + pad)
@@ -109,12 +122,15 @@ def plot_runs(runs: pd.DataFrame, level: int, png_path: str | Path, pdf_path: st
         ax.xaxis.set_major_locator(ticker.MaxNLocator(nbins=5, integer=True, steps=[1, 2, 2.5, 5, 10]))
         ax.yaxis.set_major_locator(ticker.MaxNLocator(nbins=4))
         ax.grid(alpha=0.3)
-    handles = [Line2D([], [], color=colour[loss], label=str(loss)) for loss in losses]
+    handles = [Line2D([], [], color=colour[group], label=str(group)) for group in groups]
     handles += [Line2D([], [], color="grey", label="mean over seeds"),
                 Line2D([], [], color="grey", linestyle=":", label="one seed")]
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 2 + len(datasets)),
+    if truth:
+        handles.append(Line2D([], [], color="black", linestyle="--", label="truth"))
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 2 + len(panels)),
                frameon=False)
-    fig.suptitle(f"Level {level}: validation metrics and identified parameters")
+    fig.suptitle(textwrap.fill(title or f"Level {level}: validation metrics and identified parameters",
+                               width=int(TITLE_CHARS_PER_INCH * fig.get_figwidth())))
     save(fig, png_path, pdf_path)
 
 

@@ -9,6 +9,11 @@ File names and CSV columns are an interface that other tools read:
 - ``ood_heightmap.csv``: motion, config, loss, dataset, heightmap_mm (plus loss = "hand-picked" rows
   and "average" rows)
 - ``recovery_error.csv``: level, loss, dataset, seed, parameter, truth, estimate, rel_error
+- ``materials.csv``: material, parameter, truth, seed<s> (one per seed), estimate, rel_error,
+  val_heightmap_mm
+- ``minima.csv``: dataset, start, seed, best_iteration, val_heightmap_mm, E, nu, rho, yield_stress
+- ``heightmap_losses.csv``: loss, dataset, seed, best_iteration, val_pcd_cd, val_prt_cd, val_pcd_emd,
+  val_prt_emd, val_heightmap_mm (plus dataset = "average" rows per loss)
 """
 
 from __future__ import annotations
@@ -20,7 +25,8 @@ import numpy as np
 import pandas as pd
 
 from ..motions import MOTIONS, plan, resample
-from ..parameters import HAND_PICKED, LOWER, NAMES, STEP_SIZE, UNITS, UPPER
+from ..losses import VALIDATION_METRICS
+from ..parameters import HAND_PICKED, IDENTIFIED, LOWER, NAMES, STEP_SIZE, UNITS, UPPER
 from ..pointclouds import atomic_output
 
 HAND_PICKED_LABEL = "hand-picked"
@@ -60,8 +66,7 @@ def best_params_table(summaries: list[dict], hand_picked: dict[int, float]) -> p
     ``summaries``: run summaries (identification ``summary.json``) with keys level, loss, dataset."""
     rows = []
     for (level, loss, dataset), runs in _group(summaries, ("level", "loss", "dataset")):
-        best = min((r["best"] for r in runs if r.get("best")), key=lambda b: b["validation"]["heightmap_mm"],
-                   default=None)
+        best = (_best_run(runs) or {}).get("best")
         values = best["parameters"] if best else {n: math.nan for n in NAMES}
         rows.append(dict(level=level, loss=loss, dataset=dataset, **values,
                          val_heightmap_mm=best["validation"]["heightmap_mm"] if best else math.nan))
@@ -95,6 +100,82 @@ def recovery_table(summaries: list[dict]) -> pd.DataFrame:
             for s in summaries if s.get("truth") and s.get("best") for n in NAMES]
     return pd.DataFrame(rows, columns=["level", "loss", "dataset", "seed", "parameter", "truth", "estimate",
                                        "rel_error"])
+
+
+def materials_table(summaries: list[dict], truths: dict[str, dict[str, float]]) -> pd.DataFrame:
+    """SPEC §7.4: per material and parameter the ground truth, each seed's estimate (columns
+    ``seed<s>``), the estimate of the run with the lowest validation height-map distance, its relative
+    error |estimate − truth| / |truth| and that validation distance (mm, on the material's validation
+    motion). Parameters in SI units.
+
+    ``summaries``: run summaries with keys material and seed; ``truths``: material → parameter values."""
+    seeds = sorted({s["seed"] for s in summaries})
+    rows = []
+    for (material,), runs in _group(summaries, ("material",)):
+        best = _best_run(runs)
+        by_seed = {r["seed"]: r["best"]["parameters"] for r in runs if r.get("best")}
+        for n in NAMES:
+            truth = truths[material][n]
+            estimate = best["best"]["parameters"][n] if best else math.nan
+            rows.append(dict(material=material, parameter=n, truth=truth,
+                             **{f"seed{s}": by_seed.get(s, {}).get(n, math.nan) for s in seeds},
+                             estimate=estimate, rel_error=abs(estimate - truth) / abs(truth),
+                             val_heightmap_mm=_best_heightmap(best)))
+    return pd.DataFrame(rows, columns=["material", "parameter", "truth", *(f"seed{s}" for s in seeds), "estimate",
+                                       "rel_error", "val_heightmap_mm"])
+
+
+ANY_SEED_LABEL = "any"
+"""Seed of a run whose initial values do not depend on the seed (the hand-picked start)."""
+
+
+def minima_table(summaries: list[dict], level: int = 1) -> pd.DataFrame:
+    """SPEC §7.5: per dataset and start (random, hand-picked) and seed, the best iteration, its
+    validation height-map distance (mm) and the identified parameters of ``level`` (SI units) there.
+    Hand-picked runs get the seed :data:`ANY_SEED_LABEL`: their initial values ignore the seed.
+
+    ``summaries``: run summaries with keys dataset, start and seed."""
+    rows = []
+    for s in sorted(summaries, key=lambda s: (s["dataset"], s["start"] != "random", s["seed"])):
+        best = s.get("best") or {}
+        rows.append(dict(dataset=s["dataset"], start=s["start"],
+                         seed=s["seed"] if s["start"] == "random" else ANY_SEED_LABEL,
+                         best_iteration=best.get("iteration", math.nan),
+                         val_heightmap_mm=_best_heightmap(s),
+                         **{n: best.get("parameters", {}).get(n, math.nan) for n in IDENTIFIED[level]}))
+    return pd.DataFrame(rows, columns=["dataset", "start", "seed", "best_iteration", "val_heightmap_mm",
+                                       *IDENTIFIED[level]])
+
+
+def heightmap_losses_table(summaries: list[dict]) -> pd.DataFrame:
+    """SPEC §7.7: per (loss, dataset) the five validation metrics (mm) of the run with the lowest
+    validation height-map distance across seeds, with its seed and iteration, plus per loss the average
+    over datasets (dataset = "average").
+
+    ``summaries``: run summaries with keys loss, dataset and seed."""
+    metrics = [f"val_{m}" for m in VALIDATION_METRICS]
+    rows = []
+    for (loss, dataset), runs in _group(summaries, ("loss", "dataset")):
+        best = _best_run(runs)
+        values = best["best"]["validation"] if best else {}
+        rows.append(dict(loss=loss, dataset=dataset, seed=best["seed"] if best else math.nan,
+                         best_iteration=best["best"]["iteration"] if best else math.nan,
+                         **{f"val_{m}": values.get(m, math.nan) for m in VALIDATION_METRICS}))
+    table = pd.DataFrame(rows, columns=["loss", "dataset", "seed", "best_iteration", *metrics])
+    averages = table.groupby("loss", sort=False)[metrics].mean().reset_index().assign(dataset=AVERAGE_LABEL)
+    return pd.concat([table, averages], ignore_index=True)[table.columns]
+
+
+def _best_run(runs: list[dict]) -> dict | None:
+    """The run summary whose best iteration has the lowest validation height-map distance (None if no
+    run has a best iteration)."""
+    return min((r for r in runs if r.get("best")), key=_best_heightmap, default=None)
+
+
+def _best_heightmap(summary: dict | None) -> float:
+    """Validation height-map distance (mm) at a run's best iteration (NaN if it has none)."""
+    best = (summary or {}).get("best")
+    return best["validation"]["heightmap_mm"] if best else math.nan
 
 
 def _group(records: list[dict], keys: tuple[str, ...]):
