@@ -54,4 +54,15 @@ def resolve(source: str | Mapping[str, float], truth_root: str | os.PathLike | N
     raise ValueError(f"unknown parameter source {source!r}; use one of {list(SOURCES)} or a mapping of values")
 
 
-__all__ = ["SOURCES", "best_run", "resolve"]
+def resolve_from_files(source: str | Mapping[str, float], files: Sequence[str | os.PathLike],
+                       material: str = "clay") -> Parameters:
+    """:func:`resolve` given the files the source needs, as a workflow lists them: the twin's
+    ``truth.json`` for ``"truth"``, the run summaries for ``"identified"``, nothing otherwise."""
+    if source == "truth":
+        if not files:
+            return resolve(source, None)
+        return resolve(source, truth_root=Path(files[0]).parent, material=material)
+    return resolve(source, summaries=files if source == "identified" else ())
+
+
+__all__ = ["SOURCES", "best_run", "resolve", "resolve_from_files"]
