@@ -119,7 +119,7 @@ def test_resumed_run_equals_uninterrupted_run(simulator, problem, tmp_path):
         identify(tmp_path / "parts", iterations=3, **run)
 
 
-def _failing(*args):
+def _failing(*args, **kwargs):
     raise SimulationError("unstable")
 
 
