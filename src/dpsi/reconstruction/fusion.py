@@ -26,6 +26,11 @@ TABLE_FIT_TOL = 0.0015
 """Distance (m) from the fitted table plane within which a point counts as table when fitting."""
 
 
+ICP_DECIMALS = 10
+"""Decimals the ICP transform is rounded to (1e-10 m, 1e-10 rad): Open3D's multi-threaded ICP differs
+from run to run in the last bits, which would make fusion — and a marginal meshing — irreproducible."""
+
+
 def crop(points: np.ndarray, lo, hi) -> np.ndarray:
     """The points inside the axis-aligned box [lo, hi] (m)."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
@@ -87,6 +92,7 @@ def register_views(clouds: list[np.ndarray], max_distance: float = 0.006, normal
             source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(clouds[k]))
             T = reg.registration_icp(source, target, max_distance, np.eye(4),
                                      reg.TransformationEstimationPointToPlane()).transformation
+            T = np.round(T, ICP_DECIMALS)
             clouds[k] = clouds[k] @ T[:3, :3].T + T[:3, 3]
     return clouds
 
