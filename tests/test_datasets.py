@@ -3,9 +3,9 @@
 import pandas as pd
 import pytest
 
-from dpsi.datasets import DATASETS, EFFECTORS, LONG_MOTIONS, ood, select, validation
+from dpsi.datasets import DATASETS, EFFECTORS, LONG_MOTIONS, ood, planning_start, select, validation
 from dpsi.motions import MOTIONS
-from dpsi.twin import default_plan, plan_rows
+from dpsi.twin_plan import default_plan, plan_rows
 
 
 @pytest.fixture(scope="module")
@@ -83,3 +83,14 @@ def test_missing_datapoints_are_named(table):
         ood(table[table.role != "ood"])
     with pytest.raises(ValueError, match=r"lacks column\(s\) \['material'\]"):
         select(table.drop(columns="material"), 1, "6-mix")
+
+
+def test_planning_starts_from_the_first_ood_flattening_of_clay():
+    table = pd.DataFrame({"id": ["a", "b", "c", "d"], "material": ["clay", "clay", "slime", "clay"],
+                          "level": ["2"] * 4, "role": ["train", "ood", "ood", "ood"],
+                          "motion": ["poking-2", "triple-poking", "flattening", "flattening"],
+                          "effector": ["round", "round", "cylinder", "cylinder"]})
+    table = table.assign(**{c: "x" for c in ("before", "after", "trajectory") if c not in table})
+    assert planning_start(table) == "d"
+    with pytest.raises(ValueError, match="flattening"):
+        planning_start(table[table.id != "d"])

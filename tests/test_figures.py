@@ -4,6 +4,7 @@ import pandas as pd
 import pytest
 
 from dpsi.datapoint import Datapoint
+from dpsi.effectors import ROUND
 from dpsi.heightmap import height_map
 from dpsi.identification import COLUMNS
 from dpsi.motions import Trajectory
@@ -43,7 +44,7 @@ def datapoint() -> Datapoint:
     before = block()
     after = block(nz=3, offset=(0.01, 0.0, 0.0))
     centre = np.array([0.4, 0.4])
-    return Datapoint(id="synthetic", motion="poking-2", effector="round", particles=before,
+    return Datapoint(id="synthetic", motion="poking-2", effector=ROUND, particles=before,
                      particle_volume=0.004 ** 3, trajectory=Trajectory(np.zeros((3, 3)), np.zeros(3)),
                      start=np.array([0.4, 0.4, 0.03]), table_z=0.01, pcd_target=after[::2], prt_target=after,
                      heightmap=height_map(after, centre, floor=0.01), centre_xy=centre)
@@ -103,5 +104,5 @@ def test_plot_particles_writes_png_and_pdf(tmp_path, datapoint):
 def test_outcome_plots_reject_bad_particles(tmp_path, datapoint, plot):
     with pytest.raises(ValueError, match="final particles"):
         plot(datapoint, np.zeros((4, 2)), tmp_path / "x.png", tmp_path / "x.pdf")
-    with pytest.raises(ValueError, match="NaN"):
+    with pytest.raises(ValueError, match="final particles: contains non-finite"):
         plot(datapoint, np.full((4, 3), np.nan), tmp_path / "x.png", tmp_path / "x.pdf")

@@ -47,7 +47,7 @@ def test_positions_at_steps_are_the_simulated_states():
 
 
 def datapoint(particles):
-    return Datapoint(id="d", motion="flattening", effector="cylinder", particles=particles,
+    return Datapoint(id="d", motion="flattening", effector=effectors.CYLINDER, particles=particles,
                      particle_volume=1e-7, trajectory=sinking_tip(), start=np.array([0.0, 0.0, 0.02]),
                      table_z=0.0, pcd_target=particles, prt_target=particles * (1, 1, 0.5),
                      heightmap=np.zeros((32, 32)), centre_xy=np.zeros(2))

@@ -13,7 +13,8 @@ import pytest
 
 from dpsi.datapoint import Datapoint
 from dpsi.heightmap import height_map
-from dpsi.identification import COLUMNS, LOG_FILE, STATE_FILE, IdentificationError, identify
+from dpsi.effectors import by_name
+from dpsi.identification import COLUMNS, LOG_FILE, STATE_FILE, IdentificationError, identify, scene
 from dpsi.motions import Trajectory
 from dpsi.parameters import HAND_PICKED, LEVEL1_FIXED, Parameters
 from dpsi.reconstruction.filling import pcd_target
@@ -42,9 +43,9 @@ def synthetic(simulator: Simulator, effector: str, depth: float) -> Datapoint:
     particles = block()
     centre = particles[:, :2].mean(axis=0)
     start = [*centre, particles[:, 2].max() + SPACING / 2]
-    dp = Datapoint(effector, "poke", effector, particles, SPACING**3, poke(depth), np.array(start), 0.0,
+    dp = Datapoint(effector, "poke", by_name(effector), particles, SPACING**3, poke(depth), np.array(start), 0.0,
                    particles, particles, np.zeros((32, 32)), centre)
-    after = simulator.forward(dp.scene(), TRUTH)
+    after = simulator.forward(scene(dp), TRUTH)
     dp.prt_target, dp.pcd_target, dp.heightmap = after, pcd_target(after), height_map(after, centre)
     return dp
 

@@ -9,9 +9,11 @@ import yaml
 
 from conftest import TINY, snakemake
 from dpsi.datapoint import Datapoint
+from dpsi.effectors import ROUND
 from dpsi.heightmap import height_map
-from dpsi.landscapes import (PAIRS, Landscape, axis, compute, load_landscape, pair_by_name,
-                             save_landscape)
+from dpsi.identification import scene
+from dpsi.landscape_compute import compute
+from dpsi.landscapes import PAIRS, Landscape, axis, load_landscape, pair_by_name, save_landscape
 from dpsi.motions import Trajectory
 from dpsi.parameters import HAND_PICKED, LOWER, UPPER, Parameters
 from dpsi.reconstruction.filling import pcd_target
@@ -37,7 +39,7 @@ def datapoint(after: np.ndarray | None = None) -> Datapoint:
     after = particles if after is None else after
     z = np.concatenate([np.linspace(0.0, -0.006, 9), np.linspace(-0.006, -0.003, 5)[1:]])
     centre = particles[:, :2].mean(axis=0)
-    return Datapoint("poke", "poke", "round", particles, SPACING**3,
+    return Datapoint("poke", "poke", ROUND, particles, SPACING**3,
                      Trajectory(np.column_stack([np.zeros((len(z), 2)), z]), np.zeros(len(z))),
                      np.array([*centre, particles[:, 2].max() + SPACING / 2]), 0.0,
                      pcd_target(after), after, height_map(after, centre), centre)
@@ -106,7 +108,7 @@ def test_centre_of_the_grid_that_made_the_target_is_its_minimum():
     pair = pair_by_name("yield_stress-rho")
     truth = HAND_PICKED.replace(**{pair.first: axis(pair.first, 3)[1], pair.second: axis(pair.second, 3)[1]})
     simulator = Simulator(CONFIG)
-    target = datapoint(simulator.forward(datapoint().scene(), truth))
+    target = datapoint(simulator.forward(scene(datapoint()), truth))
     landscape = compute(simulator, [target], pair, HAND_PICKED, 3, LOSSES)
     assert landscape.values.shape == (len(LOSSES), 3, 3) and np.isfinite(landscape.values).all()
     centre = landscape.values[:, 1, 1]

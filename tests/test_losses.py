@@ -132,7 +132,7 @@ def test_non_finite_simulation_gives_nan():
 def test_bad_shapes_and_targets_are_named():
     with pytest.raises(ValueError, match="simulated points"):
         chamfer(np.zeros((4, 2)), np.zeros((4, 3)))
-    with pytest.raises(ValueError, match="target points contain NaN"):
+    with pytest.raises(ValueError, match="target points: contains non-finite"):
         chamfer(np.zeros((4, 3)), np.full((4, 3), np.inf))
 
 

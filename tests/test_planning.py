@@ -13,7 +13,7 @@ from dpsi.heightmap import height_map, heightmap_distance_mm
 from dpsi.losses import HeightMapTarget
 from dpsi.parameters import HAND_PICKED
 from dpsi.planning import (EMPTY_ACTION, ActionSet, Planner, candidates, load_plan, save_plan,
-                           start_datapoint, start_locations)
+                           start_locations)
 from dpsi.simulation import Simulator, SimulatorConfig
 
 SPACING = 0.004  # m between particles: a coarse object keeps the simulations fast
@@ -63,17 +63,6 @@ def test_candidates_are_the_empty_action_then_every_motion_at_every_location():
     assert len(options) == 19 and options[0] == EMPTY_ACTION
     assert [a.motion for a in options[1:]] == ["poking-shifting-1"] * 9 + ["poking-shifting-2"] * 9
     assert len({a.start for a in options[1:]}) == 9
-
-
-def test_start_datapoint_is_the_first_ood_flattening_of_clay():
-    table = pd.DataFrame({"id": ["a", "b", "c", "d"], "material": ["clay", "clay", "slime", "clay"],
-                          "level": ["2"] * 4, "role": ["train", "ood", "ood", "ood"],
-                          "motion": ["poking-2", "triple-poking", "flattening", "flattening"],
-                          "effector": ["round", "round", "cylinder", "cylinder"]})
-    table = table.assign(**{c: "x" for c in ("before", "after", "trajectory") if c not in table})
-    assert start_datapoint(table) == "d"
-    with pytest.raises(ValueError, match="flattening"):
-        start_datapoint(table[table.id != "d"])
 
 
 # ---------------------------------------------------------------- search

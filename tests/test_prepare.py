@@ -8,11 +8,13 @@ from scipy.spatial import cKDTree
 
 from dpsi.capture import capture
 from dpsi.datapoint import load_datapoint, save_datapoint
-from dpsi.heightmap import CELLS, height_map
+from dpsi.heightmap import CELLS, footprint_centre, height_map
 from dpsi.motions import MOTIONS, plan, write_waypoints
 from dpsi.pointclouds import read_mesh, write_mesh, write_points
-from dpsi.prepare import (build_datapoint, fill_particles, footprint_centre, fuse_state, prepare_datapoint,
-                          reconstruct_state, surface_points, targets, trajectory_and_start)
+from dpsi.effectors import CYLINDER
+from dpsi.prepare import (after_targets, build_datapoint, fill_particles, fuse_state, load_targets, load_trajectory,
+                          prepare_datapoint, reconstruct_state, save_targets, save_trajectory, surface_points,
+                          trajectory_and_start)
 from dpsi.rawdata import load_raw_dataset, write_datapoints_table, write_views
 from dpsi.reconstruction.filling import fill, pcd_target, prt_target
 from dpsi.reconstruction.meshing import mesh_volume
@@ -58,7 +60,7 @@ def from_views(raw):
 
 def test_views_become_a_datapoint(from_views, tmp_path):
     dp = from_views
-    assert (dp.id, dp.motion, dp.effector) == ("views", "poking-1", "round")
+    assert (dp.id, dp.motion, dp.effector.name) == ("views", "poking-1", "round")
     assert len(dp.particles) == pytest.approx(DENSITY * mesh_volume(BEFORE), rel=0.12)
     assert dp.particle_volume == pytest.approx(1 / DENSITY)
     assert 0 < len(dp.prt_target) <= len(dp.particles)
@@ -91,7 +93,7 @@ def test_meshes_enter_at_filling_and_prt_target_fits(raw):
     assert np.abs(np.asarray(after.get_min_bound()) - points.min(axis=0)).max() < 0.002
 
 
-def test_stages_alone_match_the_composition(raw, from_views):
+def test_stages_alone_match_the_composition(raw, from_views, tmp_path):
     views_dp, mixed = raw.datapoints[0], raw.datapoints[2]
     points, mesh = reconstruct_state(views_dp.before, raw.workspace, raw.table_z, "views before")
     fused = fuse_state(views_dp.before.load(), raw.workspace, raw.table_z)
@@ -101,13 +103,22 @@ def test_stages_alone_match_the_composition(raw, from_views):
 
     after_points, after_mesh = reconstruct_state(mixed.after, raw.workspace, raw.table_z, "mixed after")
     np.testing.assert_array_equal(after_points, mixed.after.load())  # a fused cloud is used as it is
-    dp = build_datapoint(mixed, BEFORE, after_mesh, after_points, DENSITY, raw.table_z)
-    prt, pcd, hm = targets(after_mesh, after_points, len(dp.particles), DENSITY, dp.centre_xy, 0.0)
+    dp = build_datapoint(mixed, CYLINDER, BEFORE, after_mesh, after_points, DENSITY, raw.table_z)
+    targets = after_targets(after_mesh, after_points, dp.particles, DENSITY, 0.0)
     np.testing.assert_array_equal(dp.pcd_target, pcd_target(after_points))
-    np.testing.assert_array_equal(dp.heightmap, hm)
+    np.testing.assert_array_equal(dp.heightmap, targets.heightmap)
     trajectory, start = trajectory_and_start(mixed.trajectory)
     np.testing.assert_array_equal(dp.trajectory.positions, trajectory.positions)
     np.testing.assert_allclose(start, START, atol=1e-12)
+    # the workflow's stage files give back exactly what was written
+    save_targets(tmp_path / "targets.npz", targets)
+    save_trajectory(tmp_path / "trajectory.npz", trajectory, start)
+    read = load_targets(tmp_path / "targets.npz")
+    np.testing.assert_array_equal(read.prt_target, targets.prt_target)
+    np.testing.assert_array_equal(read.centre_xy, footprint_centre(dp.particles))
+    read_trajectory, read_start = load_trajectory(tmp_path / "trajectory.npz")
+    np.testing.assert_array_equal(read_trajectory.yaw, trajectory.yaw)
+    np.testing.assert_array_equal(read_start, start)
 
 
 def test_errors_name_the_datapoint(raw):

@@ -7,7 +7,8 @@ import open3d as o3d
 import pytest
 
 from dpsi.motions import MOTIONS, plan, write_waypoints
-from dpsi.pointclouds import View, atomic_output, write_mesh, write_points
+from dpsi.files import atomic_output
+from dpsi.pointclouds import View, write_mesh, write_points
 from dpsi.rawdata import RawDataError, load_raw_dataset, write_datapoints_table, write_views
 
 ROWS = [

@@ -17,7 +17,7 @@ from dpsi.reporting.figures import plot_runs
 from dpsi.reporting.runs import load_runs
 from dpsi.reporting.tables import (ANY_SEED_LABEL, heightmap_losses_table, materials_table, minima_table,
                                    write_table)
-from dpsi.twin import MATERIALS
+from dpsi.twin_plan import MATERIALS
 from test_figures import assert_figure, synthetic_runs
 
 
@@ -92,15 +92,20 @@ def test_load_runs_labels_summaries_and_log_rows(tmp_path):
     for seed in (0, 1):
         folder = tmp_path / f"seed{seed}"
         folder.mkdir()
-        (folder / "summary.json").write_text(json.dumps(summary(seed, 100.0, loss="prt_emd")))
+        labels = dict(level=2, loss="prt_emd", dataset="1-cylinder", seed=seed, start="random",
+                      material=("slime", "soil")[seed])
+        (folder / "summary.json").write_text(json.dumps({**summary(seed, 100.0, loss="prt_emd"), "labels": labels}))
         pd.DataFrame({"iteration": [0, 1, 2], "E": [1e4, 2e4, 3e4]}).to_csv(folder / "log.csv", index=False)
         files.append((folder / "summary.json", folder / "log.csv"))
-    labels = [{"material": "slime", "seed": 0}, {"material": "soil", "seed": 1}]
-    summaries, logs = load_runs(*zip(*files), labels)
+    summaries, logs = load_runs(*zip(*files))
     assert [s["material"] for s in summaries] == ["slime", "soil"] and summaries[1]["loss"] == "prt_emd"
     assert len(logs) == 6 and list(logs.groupby("material").seed.first()) == [0, 1]
+    assert set(logs.dataset) == {"1-cylinder"} and set(logs.start) == {"random"}
     with pytest.raises(ValueError, match="one of each per run"):
-        load_runs([files[0][0]], [files[0][1]], labels)
+        load_runs([files[0][0]], [])
+    (tmp_path / "old.json").write_text(json.dumps(summary(0, 100.0, loss="prt_emd")))
+    with pytest.raises(ValueError, match="lacks the label"):
+        load_runs([tmp_path / "old.json"], [files[0][1]])
 
 
 def test_plot_runs_by_other_keys_with_truth(tmp_path):

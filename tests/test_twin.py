@@ -14,8 +14,9 @@ from dpsi.prepare import fuse_state
 from dpsi.rawdata import load_raw_dataset
 from dpsi.reconstruction.filling import lattice_spacing
 from dpsi.simulation import SimulatorConfig
-from dpsi.twin import (GROUND_TRUTH_FILE, MATERIALS, WORKSPACE, Group, default_plan, generate_datapoint,
-                       generate_twin, load_ground_truth, plan_from_config, plan_rows, read_truth, write_twin_table)
+from dpsi.twin import (GROUND_TRUTH_FILE, WORKSPACE, generate_datapoint, generate_twin, load_ground_truth, read_truth,
+                       write_twin_table)
+from dpsi.twin_plan import MATERIALS, Group, default_plan, plan_from_config, plan_rows
 
 TINY = dict(config=SimulatorConfig(dx=0.008, max_particles=2000, max_steps=100), density=8e6)
 PLAN = (Group("clay", 1, "train", ("poking-2",), ("round",), 1),)

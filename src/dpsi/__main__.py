@@ -23,7 +23,7 @@ from dpsi.losses import LOSSES
 from dpsi.motions import MOTIONS, get_motion, trajectory
 from dpsi.parameters import HAND_PICKED, IDENTIFIED, NAMES, UNITS, Parameters, random_initial
 from dpsi.pointclouds import read_mesh
-from dpsi.prepare import fill_particles, footprint_centre, reconstruct_state, targets
+from dpsi.prepare import after_targets, assemble, fill_particles, reconstruct_state
 from dpsi.rawdata import StateSource
 from dpsi.simulation import SimulationError, Simulator, SimulatorConfig
 
@@ -48,17 +48,15 @@ def _shapes_datapoint(before: str, after: str, motion: str, effector: str, densi
     through the before shape's lowest point; the tip starts at the top centre of the before shape's
     bounding box and follows the resampled ``motion``."""
     get_motion(motion)
-    by_name(effector)
+    shape = by_name(effector)
     _, before_mesh = reconstruct_state(_source(before), None, 0.0, before)
     after_points, after_mesh = reconstruct_state(_source(after), None, 0.0, after)
     lo, hi = before_mesh.get_min_bound(), before_mesh.get_max_bound()
     table_z = float(lo[2]) if table_z is None else table_z
     particles = fill_particles(before_mesh, density, before)
-    centre = footprint_centre(particles)
-    prt, pcd, heights = targets(after_mesh, after_points, len(particles), density, centre, table_z)
+    targets = after_targets(after_mesh, after_points, particles, density, table_z)
     start = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2]]
-    return Datapoint(Path(before).stem, motion, effector, particles, 1.0 / density, trajectory(motion), start,
-                     table_z, pcd, prt, heights, centre)
+    return assemble(Path(before).stem, motion, shape, particles, density, trajectory(motion), start, targets)
 
 
 def _param(text: str) -> tuple[str, float]:

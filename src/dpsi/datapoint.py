@@ -3,30 +3,29 @@ reconstruction stages. Stored as one ``.npz`` file. Lengths in m, robot base fra
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .effectors import Effector, by_name
+from .effectors import Effector
+from .files import load_arrays, save_arrays
 from .motions import Trajectory
-from .pointclouds import atomic_output
-from .simulation import Scene
 
 
 @dataclass
 class Datapoint:
     """particles: the before object filled with particles (n, 3), each of volume ``particle_volume``
-    (m³). trajectory / start: the resampled effector motion and the tip's start position (the top
-    centre of the object unless the capture says otherwise). Targets of the after state: ``pcd_target``
-    (down-sampled fused cloud), ``prt_target`` (particles filled in the after mesh, at most n), and
-    ``heightmap`` (32 × 32 highest z, m) of the fused after cloud over the square centred at
-    ``centre_xy``."""
+    (m³). effector: the shape that made the motion (built-in or from the dataset's mesh). trajectory /
+    start: the resampled effector motion and the tip's start position (the top centre of the object
+    unless the capture says otherwise). Targets of the after state: ``pcd_target`` (down-sampled fused
+    cloud), ``prt_target`` (particles filled in the after mesh, at most n), and ``heightmap`` (32 × 32
+    highest z, m) of the fused after cloud over the square centred at ``centre_xy``. The simulator's
+    scene of a datapoint is :func:`dpsi.identification.scene`."""
 
     id: str
     motion: str
-    effector: str
+    effector: Effector
     particles: np.ndarray
     particle_volume: float
     trajectory: Trajectory
@@ -37,35 +36,31 @@ class Datapoint:
     heightmap: np.ndarray
     centre_xy: np.ndarray
 
-    def scene(self, effector: Effector | None = None) -> Scene:
-        """The simulator scene; ``effector`` overrides the built-in one named by ``self.effector``."""
-        return Scene(self.particles, self.particle_volume, effector or by_name(self.effector),
-                     self.trajectory, self.start, self.table_z)
 
-
-_ARRAYS = ("particles", "start", "pcd_target", "prt_target", "heightmap", "centre_xy")
+_ARRAYS = ("particles", "start", "pcd_target", "prt_target", "heightmap", "centre_xy", "trajectory_positions",
+           "trajectory_yaw", "effector_sdf")
 
 
 def save_datapoint(path: str | Path, dp: Datapoint) -> None:
     """Write ``dp`` to ``path`` (.npz) atomically."""
-    meta = {"id": dp.id, "motion": dp.motion, "effector": dp.effector,
-            "particle_volume": dp.particle_volume, "table_z": dp.table_z, "dt": dp.trajectory.dt}
-    with atomic_output(path) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez_compressed(f, meta=json.dumps(meta), trajectory_positions=dp.trajectory.positions,
-                                trajectory_yaw=dp.trajectory.yaw, **{k: getattr(dp, k) for k in _ARRAYS})
+    e = dp.effector
+    meta = {"id": dp.id, "motion": dp.motion, "particle_volume": dp.particle_volume, "table_z": dp.table_z,
+            "dt": dp.trajectory.dt,
+            "effector": {"name": e.name, "kind": e.kind, "size": list(e.size), "initial_yaw": e.initial_yaw,
+                         "sdf_lower": list(e.sdf_lower), "sdf_spacing": e.sdf_spacing}}
+    arrays = {k: getattr(dp, k) for k in _ARRAYS[:6]}
+    save_arrays(path, meta, {**arrays, "trajectory_positions": dp.trajectory.positions,
+                             "trajectory_yaw": dp.trajectory.yaw,
+                             "effector_sdf": np.zeros(0) if e.sdf is None else e.sdf})
 
 
 def load_datapoint(path: str | Path) -> Datapoint:
     """Read a datapoint written by :func:`save_datapoint`; errors name the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"prepared datapoint {path} does not exist; run the preparation stage first")
-    try:
-        with np.load(path) as data:
-            meta = json.loads(str(data["meta"]))
-            arrays = {k: np.asarray(data[k], dtype=float) for k in _ARRAYS}
-            trajectory = Trajectory(data["trajectory_positions"], data["trajectory_yaw"], meta.pop("dt"))
-    except (KeyError, ValueError, OSError) as err:
-        raise ValueError(f"{path} is not a prepared datapoint file: {err}") from err
-    return Datapoint(trajectory=trajectory, **meta, **arrays)
+    meta, arrays = load_arrays(path, _ARRAYS, "prepared datapoint")
+    arrays = {k: a.astype(float) for k, a in arrays.items()}
+    trajectory = Trajectory(arrays.pop("trajectory_positions"), arrays.pop("trajectory_yaw"), meta.pop("dt"))
+    shape = meta.pop("effector")
+    sdf = arrays.pop("effector_sdf")
+    effector = Effector(shape["name"], shape["kind"], tuple(shape["size"]), shape["initial_yaw"],
+                        sdf if sdf.size else None, tuple(shape["sdf_lower"]), shape["sdf_spacing"])
+    return Datapoint(trajectory=trajectory, effector=effector, **meta, **arrays)

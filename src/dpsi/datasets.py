@@ -1,4 +1,4 @@
-"""The datasets of SPEC §6, selected from a datapoints table (columns as in :data:`dpsi.rawdata.COLUMNS`).
+"""The datapoints table (:data:`COLUMNS`) and the datasets of SPEC §6 selected from it.
 
 Per level, motion A is poking-1 / poking-shifting-1 and motion B poking-2 / poking-shifting-2:
 
@@ -15,8 +15,10 @@ from __future__ import annotations
 import pandas as pd
 
 from dpsi.motions import MOTIONS
-from dpsi.rawdata import COLUMNS, RawDataset
 
+COLUMNS = ("id", "motion", "effector", "level", "role", "material")
+"""Columns of a datapoints table (docs/raw-format.md)."""
+ROLES = ("train", "validation", "ood")
 DATASETS = ("12-mix", "6-mix", "1-rectangle", "1-round", "1-cylinder")
 EFFECTORS = ("rectangle", "round", "cylinder")
 MOTION_A = {1: "poking-1", 2: "poking-shifting-1"}
@@ -25,9 +27,13 @@ LONG_MOTIONS = tuple(name for name, m in MOTIONS.items() if m.level is None)
 """The out-of-distribution motions, each made with its own effector."""
 
 
-def _frame(table: pd.DataFrame | RawDataset) -> pd.DataFrame:
-    """The table as strings, from a DataFrame or a loaded raw dataset."""
-    if isinstance(table, RawDataset):
+PLANNING_MOTION = "flattening"
+"""The motion of the datapoint whose after state greedy planning aims at (SPEC §7.8)."""
+
+
+def _frame(table) -> pd.DataFrame:
+    """The table as strings, from a DataFrame or a loaded raw dataset (:class:`dpsi.rawdata.RawDataset`)."""
+    if not isinstance(table, pd.DataFrame):
         table = pd.DataFrame([{c: getattr(d, c) for c in COLUMNS} for d in table.datapoints])
     missing = [c for c in COLUMNS if c not in table.columns]
     if missing:
@@ -51,7 +57,7 @@ def _recipe(level: int, name: str) -> list[tuple[str, str, int]]:
     raise ValueError(f"unknown dataset {name!r}; known datasets are {list(DATASETS)}")
 
 
-def select(table: pd.DataFrame | RawDataset, level: int, name: str, material: str = "clay") -> list[str]:
+def select(table: pd.DataFrame, level: int, name: str, material: str = "clay") -> list[str]:
     """Ids of the train datapoints forming dataset ``name`` (one of :data:`DATASETS`) at ``level`` for
     ``material``, in recipe order (motion A before B, effectors as in :data:`EFFECTORS`). Raises
     ``ValueError`` listing every motion × effector combination with too few train datapoints."""
@@ -83,14 +89,26 @@ def _role(table, role: str, material: str, level: int | None = None) -> list[str
     return ids
 
 
-def validation(table: pd.DataFrame | RawDataset, level: int, material: str = "clay") -> list[str]:
+def validation(table: pd.DataFrame, level: int, material: str = "clay") -> list[str]:
     """Ids of the validation datapoints of ``level`` and ``material``, in table order."""
     return _role(table, "validation", material, level)
 
 
-def ood(table: pd.DataFrame | RawDataset, material: str = "clay") -> list[str]:
+def ood(table: pd.DataFrame, material: str = "clay") -> list[str]:
     """Ids of the out-of-distribution (ood-role) datapoints of ``material``, in table order."""
     return _role(table, "ood", material)
 
 
-__all__ = ["DATASETS", "EFFECTORS", "MOTION_A", "MOTION_B", "LONG_MOTIONS", "select", "validation", "ood"]
+def planning_start(table: pd.DataFrame) -> str:
+    """Id of the first out-of-distribution clay datapoint of :data:`PLANNING_MOTION` in the datapoints
+    table: its before state is the greedy plan's start, its captured after state the target.
+    ``ValueError`` if there is none."""
+    df = _frame(table)
+    found = [i for i in ood(df) if df.set_index("id").motion[i] == PLANNING_MOTION]
+    if not found:
+        raise ValueError(f"planning needs an out-of-distribution clay datapoint of {PLANNING_MOTION}; "
+                         "the datapoints table has none")
+    return found[0]
+
+
+__all__ = ["COLUMNS", "ROLES", "PLANNING_MOTION", "planning_start", "DATASETS", "EFFECTORS", "MOTION_A", "MOTION_B", "LONG_MOTIONS", "select", "validation", "ood"]

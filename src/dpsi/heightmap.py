@@ -20,6 +20,13 @@ TABLE_HEIGHT = 0.0
 """Default value (m) of empty cells: the table plane z = 0."""
 
 
+def footprint_centre(particles) -> np.ndarray:
+    """Middle (x, y) in m of the footprint of ``particles`` (n, 3): the centre of a datapoint's height
+    maps and of the simulated box."""
+    particles = np.asarray(particles, dtype=float)
+    return 0.5 * (particles[:, :2].min(axis=0) + particles[:, :2].max(axis=0))
+
+
 def height_map_owners(points, centre_xy, size: float = SIZE, cells: int = CELLS) -> np.ndarray:
     """Index of the point holding each cell's highest z, shape (cells, cells); -1 for empty cells.
 

@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Sequence, TextIO
 
 import numpy as np
@@ -35,8 +35,9 @@ from dpsi.datapoint import Datapoint
 from dpsi.losses import LOSSES, VALIDATION_METRICS, HeightMapTarget, Targets, loss_by_name, validation_metrics
 from dpsi.optim import Adam, screen_gradients
 from dpsi.parameters import IDENTIFIED, LEVEL1_FIXED, NAMES, Parameters, random_initial
-from dpsi.pointclouds import atomic_output
-from dpsi.simulation import SimulationError, Simulator, SimulatorConfig
+from dpsi.files import atomic_output
+from dpsi.progress import Progress
+from dpsi.simulation import Scene, SimulationError, Simulator, SimulatorConfig
 
 LOG_FILE, SUMMARY_FILE, STATE_FILE = "log.csv", "summary.json", "state.json"
 STATE_VERSION = 1
@@ -55,6 +56,11 @@ class IdentificationError(ValueError):
     """Bad run arguments, or an output folder holding a different run."""
 
 
+def scene(dp: Datapoint) -> Scene:
+    """The simulator scene of a datapoint: its particles, effector, trajectory and table."""
+    return Scene(dp.particles, dp.particle_volume, dp.effector, dp.trajectory, dp.start, dp.table_z)
+
+
 def targets(dp: Datapoint) -> Targets:
     """The loss targets of a datapoint."""
     return Targets(pcd=dp.pcd_target, prt=dp.prt_target, heightmap=HeightMapTarget(dp.heightmap, dp.centre_xy, dp.table_z))
@@ -63,7 +69,7 @@ def targets(dp: Datapoint) -> Targets:
 def evaluate(simulator: Simulator, dp: Datapoint, params: Parameters) -> dict[str, float]:
     """Simulate ``dp`` with ``params`` and return its five validation metrics (mm); raises
     :class:`SimulationError` if the simulation fails."""
-    final = simulator.forward(dp.scene(), params, keep_substeps=False)
+    final = simulator.forward(scene(dp), params, keep_substeps=False)
     return validation_metrics(final, dp.pcd_target, dp.prt_target, dp.heightmap, dp.centre_xy, dp.table_z)
 
 
@@ -79,7 +85,7 @@ def training_gradient(simulator: Simulator, training: Sequence[Datapoint], param
     values, gradients = [], []
     for dp in training:
         try:
-            value, d_positions = loss_fn(simulator.forward(dp.scene(), params), targets(dp))
+            value, d_positions = loss_fn(simulator.forward(scene(dp), params), targets(dp))
             gradient = simulator.backward(d_positions)
         except SimulationError:
             value, gradient = math.nan, _nan_gradient()
@@ -194,15 +200,16 @@ def _gradient_of(row: dict) -> dict[str, float] | None:
     return None if any(math.isnan(g) for g in gradient.values()) else gradient
 
 
-def summarise(rows: Sequence[dict], fingerprint: dict, iterations: int, truth: Parameters | None) -> dict:
-    """The run summary: best row (lowest finite validation height-map distance among rows k ≥ 1, or
+def summarise(rows: Sequence[dict], fingerprint: dict, iterations: int, truth: Parameters | None,
+              labels: Mapping | None = None) -> dict:
+    """The run summary: its ``labels`` (what the run is, for the reports), best row (lowest finite validation height-map distance among rows k ≥ 1, or
     row 0 if there are none), its parameters and metrics, the final parameters and, given ``truth``,
     the relative error |best − truth| / |truth| of each parameter."""
     candidates = [r for r in (rows[1:] or rows) if r["val_heightmap_mm"] is not None
                   and math.isfinite(r["val_heightmap_mm"])]
     best = min(candidates, key=lambda r: r["val_heightmap_mm"]) if candidates else None
     completed = rows[-1]["iteration"]
-    out = {**fingerprint, "iterations": iterations, "completed_iterations": completed,
+    out = {**fingerprint, "labels": dict(labels or {}), "iterations": iterations, "completed_iterations": completed,
            "stopped_early": None if completed == iterations else _CANNOT_UPDATE.format(k=completed),
            "skipped_total": int(sum(r["skipped"] for r in rows)),
            "wall_s": float(sum(r["wall_s"] for r in rows)),
@@ -217,41 +224,11 @@ def summarise(rows: Sequence[dict], fingerprint: dict, iterations: int, truth: P
     return out
 
 
-class Progress:
-    """Progress on ``stream`` (default stderr): a redrawn bar with loss and ETA on a terminal,
-    otherwise one plain line per row."""
-
-    def __init__(self, total: int, label: str, stream: TextIO | None = None):
-        self.total, self.label = total, label
-        self.stream = stream or sys.stderr
-        self.bar = self.stream.isatty()
-        self.times: list[float] = []
-
-    def update(self, row: dict) -> None:
-        k = row["iteration"]
-        self.times.append(row["wall_s"])
-        if self.bar:
-            filled = round(20 * k / self.total)
-            eta = float(np.mean(self.times)) * (self.total - k)
-            self.stream.write(f"\r{self.label} [{'#' * filled}{'.' * (20 - filled)}] {k}/{self.total} "
-                              f"loss {row['train_loss_mm']:.1f} mm ETA {eta:.0f} s\033[K")
-            if k == self.total:
-                self.stream.write("\n")
-        else:
-            self.stream.write(f"{self.label} {k}/{self.total}: loss {row['train_loss_mm']:.1f} mm, val height map "
-                              f"{row['val_heightmap_mm']:.1f} mm, skipped {row['skipped']}, {row['wall_s']:.1f} s\n")
-        self.stream.flush()
-
-    def message(self, text: str) -> None:
-        self.stream.write(("\n" if self.bar else "") + f"{self.label} {text}\n")
-        self.stream.flush()
-
-
 def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Datapoint],
              validation_set: Sequence[Datapoint], seed: int = 0, iterations: int = 100,
              initial: Parameters | None = None, truth: Parameters | None = None,
              simulator: Simulator | None = None, progress: TextIO | None = None,
-             restart_if_different: bool = False) -> dict:
+             restart_if_different: bool = False, labels: Mapping | None = None) -> dict:
     """Run (or resume) an identification into ``out_dir`` and return its summary (see module doc).
 
     ``initial``: the starting θ (default random from ``seed`` in the level's ranges; at level 1 its frictions
@@ -259,7 +236,8 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
     parameters for the relative errors; ``simulator``: the process's simulator (default: one with
     :class:`SimulatorConfig` defaults); ``progress``: stream for progress messages (default stderr);
     ``restart_if_different``: discard a state file left by a different run (other datapoints, seed or
-    initial values) instead of refusing to continue it.
+    initial values) instead of refusing to continue it; ``labels``: what the run is (level, loss, dataset,
+    seed, start, material), written into its summary for the reports.
     """
     config = simulator.config if simulator is not None else SimulatorConfig()
     initial = check_run(level, loss, training, validation_set, seed, iterations, initial, config)
@@ -294,14 +272,17 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
         rows.append(_row(len(rows), params, loss_mm, gradient, skipped, metrics, val_skipped,
                          time.perf_counter() - start))
         _save_state(out_dir / STATE_FILE, fingerprint, adam, rows)
-        bar.update(rows[-1])
+        row = rows[-1]
+        bar.update(row["iteration"], f"loss {row['train_loss_mm']:.1f} mm, val height map "
+                                     f"{row['val_heightmap_mm']:.1f} mm, skipped {row['skipped']}, {row['wall_s']:.1f} s")
+    bar.close()
     with atomic_output(out_dir / LOG_FILE) as tmp:
         pd.DataFrame(rows, columns=list(COLUMNS)).to_csv(tmp, index=False)
-    summary = summarise(rows, fingerprint, iterations, truth)
+    summary = summarise(rows, fingerprint, iterations, truth, labels)
     with atomic_output(out_dir / SUMMARY_FILE) as tmp:
         tmp.write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
 
-__all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "IdentificationError", "targets",
-           "evaluate", "training_gradient", "validation", "check_run", "summarise", "Progress", "identify"]
+__all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "IdentificationError", "scene", "targets",
+           "evaluate", "training_gradient", "validation", "check_run", "summarise", "identify"]

@@ -18,6 +18,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
+from dpsi.files import check_points
 from dpsi.heightmap import height_map, height_map_owners, heightmap_distance_mm
 
 MM_PER_M = 1000.0
@@ -26,20 +27,10 @@ LossResult = tuple[float, np.ndarray]
 """(value in mm, gradient (n, 3) in mm/m)."""
 
 
-def _points(array, what: str) -> np.ndarray:
-    """``array`` as a non-empty float (k, 3) array, or a ValueError naming ``what``."""
-    out = np.asarray(array, dtype=float)
-    if out.ndim != 2 or out.shape[1] != 3 or len(out) == 0:
-        raise ValueError(f"{what} must have shape (k, 3) with k > 0, got {out.shape}")
-    return out
-
-
 def _checked(sim, target) -> tuple[np.ndarray, np.ndarray] | None:
     """Validated (sim, target) arrays, or None if the simulated set is not finite."""
-    sim = _points(sim, "simulated points")
-    target = _points(target, "target points")
-    if not np.isfinite(target).all():
-        raise ValueError("target points contain NaN or inf")
+    sim = check_points(sim, "simulated points", finite=False)
+    target = check_points(target, "target points")
     return (sim, target) if np.isfinite(sim).all() else None
 
 
@@ -102,7 +93,7 @@ class HeightMapTarget(NamedTuple):
 def heightmap_loss(sim, target: HeightMapTarget) -> LossResult:
     """Height-map distance (mm) of the particles to a real height map; the gradient of each
     cell goes to the z of the particle holding that cell's highest z (SPEC §3.5, §7.7)."""
-    sim = _points(sim, "simulated points")
+    sim = check_points(sim, "simulated points", finite=False)
     if not np.isfinite(sim).all():
         return _not_finite(sim)
     heights = np.asarray(target.heights, dtype=float)

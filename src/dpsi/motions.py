@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from dpsi.pointclouds import atomic_output
+from dpsi.files import atomic_output
 
 DT = 0.01
 """Simulation step (s)."""

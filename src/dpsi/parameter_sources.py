@@ -1,7 +1,7 @@
 """Where an analysis takes its fixed parameters θ from: a name in the config, resolved to values.
 
 - ``"hand-picked"``: :data:`~dpsi.parameters.HAND_PICKED`;
-- ``"truth"``: the synthetic twin's ground truth of a material (``truth.json``, :func:`dpsi.twin.read_truth`);
+- ``"truth"``: the synthetic twin's ground truth of a material (``truth.json``, :func:`dpsi.twin_plan.load_truth`);
 - ``"identified"``: the best iteration (lowest validation height-map distance) among run summaries;
 - a mapping of some parameter names to values: those values, the others hand-picked.
 """
@@ -14,6 +14,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from dpsi.parameters import HAND_PICKED, Parameters
+from dpsi.twin_plan import load_truth
 
 SOURCES = ("hand-picked", "truth", "identified")
 
@@ -40,9 +41,7 @@ def resolve(source: str | Mapping[str, float], truth_root: str | os.PathLike | N
         if truth_root is None:
             raise ValueError("parameters 'truth' need a synthetic twin (a `twin` section in the config); "
                              "real captures have no ground truth")
-        from dpsi.twin import read_truth
-
-        materials = read_truth(truth_root)[0]
+        materials = load_truth(truth_root)["materials"]
         if material not in materials:
             raise ValueError(f"the twin's truth has no material {material!r}; it has {sorted(materials)}")
         return materials[material]

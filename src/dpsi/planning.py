@@ -27,18 +27,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from dpsi.datasets import ood
 from dpsi.effectors import Effector
-from dpsi.heightmap import height_map, heightmap_distance_mm
+from dpsi.heightmap import footprint_centre, height_map, heightmap_distance_mm
 from dpsi.losses import HeightMapTarget
 from dpsi.motions import Trajectory, trajectory
 from dpsi.parameters import Parameters
-from dpsi.pointclouds import atomic_output
-from dpsi.prepare import footprint_centre
+from dpsi.files import atomic_output
 from dpsi.simulation import Scene, SimulationError, Simulator
-
-TARGET_MOTION = "flattening"
-"""The motion whose captured after state gives the target height map (and whose before state the start)."""
 
 EMPTY = "none"
 """Motion label of the empty action in records and tables."""
@@ -210,18 +205,6 @@ def _describe(action: Action) -> str:
     return f"{action.label} from ({x:.1f}, {y:.1f}, {z:.1f}) mm"
 
 
-def start_datapoint(table: pd.DataFrame) -> str:
-    """Id of the first out-of-distribution clay datapoint of :data:`TARGET_MOTION` in the datapoints
-    table (columns of :data:`dpsi.rawdata.COLUMNS`): its before state is the plan's start, its captured
-    after state the target. ``ValueError`` if there is none."""
-    motion = dict(zip(table["id"].astype(str), table["motion"].astype(str)))
-    found = [i for i in ood(table) if motion[i] == TARGET_MOTION]
-    if not found:
-        raise ValueError(f"planning needs an out-of-distribution clay datapoint of {TARGET_MOTION}; "
-                         "the datapoints table has none")
-    return found[0]
-
-
 def plan_record(plan: Plan) -> dict:
     """The plan as JSON-ready data: the height-map centre (m), distances (mm) before and after every
     action, the actions (start in m) and the candidates skipped at each."""
@@ -258,5 +241,5 @@ def load_plan(json_path: str | os.PathLike, npz_path: str | os.PathLike) -> tupl
         return Plan(target, data["start"], steps), record
 
 
-__all__ = ["TARGET_MOTION", "EMPTY", "Action", "EMPTY_ACTION", "ActionSet", "start_locations", "candidates",
-           "heightmap_of", "Step", "Plan", "Planner", "start_datapoint", "plan_record", "save_plan", "load_plan"]
+__all__ = ["EMPTY", "Action", "EMPTY_ACTION", "ActionSet", "start_locations", "candidates",
+           "heightmap_of", "Step", "Plan", "Planner", "plan_record", "save_plan", "load_plan"]

@@ -3,21 +3,21 @@
 Point clouds are ``np.ndarray`` of shape (n, 3) in metres, read from PLY, PCD or XYZ files (via Open3D)
 or ``.npy`` arrays. Meshes are ``open3d.geometry.TriangleMesh`` read from OBJ or PLY. Transforms are
 4×4 homogeneous matrices (translation in m) stored as text (4 rows of 4 numbers, separated by spaces or
-commas) or ``.npy``. Every reader raises an error naming the file and the problem; every writer writes
-a temporary file in the target folder and renames it, so a failed write never leaves a partial file.
+commas) or ``.npy``. Every reader raises an error naming the file and the problem; every writer writes atomically
+(:func:`dpsi.files.atomic_output`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import open3d as o3d
 import pymeshlab
+
+from dpsi.files import atomic_output, check_points
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".npy")
 MESH_SUFFIXES = (".obj", ".ply")
@@ -39,26 +39,6 @@ class View:
         return transform_points(self.camera_to_base, self.points)
 
 
-@contextlib.contextmanager
-def atomic_output(path: str | os.PathLike):
-    """Yield a temporary path next to ``path`` (same suffix); on success rename it to ``path``,
-    on any error delete it, so ``path`` is either complete or untouched."""
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"{path}: cannot write, folder {path.parent} does not exist")
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}")
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; give it the usual permissions
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
 def _existing(path: str | os.PathLike, suffixes: tuple[str, ...], what: str) -> Path:
     path = Path(path)
     if path.suffix.lower() not in suffixes:
@@ -68,19 +48,6 @@ def _existing(path: str | os.PathLike, suffixes: tuple[str, ...], what: str) -> 
     if path.stat().st_size == 0:
         raise ValueError(f"{path}: {what} file is empty")
     return path
-
-
-def check_points(points, source: str = "points") -> np.ndarray:
-    """``points`` as a float (n, 3) array; ``ValueError`` naming ``source`` if empty, mis-shaped or
-    non-finite."""
-    a = np.asarray(points, dtype=float)
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise ValueError(f"{source}: expected an (n, 3) array of points, got shape {a.shape}")
-    if len(a) == 0:
-        raise ValueError(f"{source}: contains no points")
-    if not np.isfinite(a).all():
-        raise ValueError(f"{source}: contains non-finite coordinates")
-    return a
 
 
 def read_points(path: str | os.PathLike) -> np.ndarray:
@@ -198,7 +165,6 @@ def transform_points(matrix, points) -> np.ndarray:
 
 
 __all__ = [
-    "CLOUD_SUFFIXES", "MESH_SUFFIXES", "TRANSFORM_SUFFIXES", "RIGID_TOL", "View", "atomic_output", "check_points",
-    "read_points", "write_points", "read_mesh", "write_mesh", "check_rigid", "read_transform",
+    "CLOUD_SUFFIXES", "MESH_SUFFIXES", "TRANSFORM_SUFFIXES", "RIGID_TOL", "View", "read_points", "write_points", "read_mesh", "write_mesh", "check_rigid", "read_transform",
     "write_transform", "transform_points",
 ]

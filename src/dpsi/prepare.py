@@ -6,10 +6,12 @@ Stages, each usable alone (the workflow runs them as separate rules with files i
 2. :func:`dpsi.reconstruction.meshing.reconstruct_mesh` – fused cloud → watertight mesh (skipped for a
    state given as a mesh);
 3. :func:`fill_particles` – before mesh → particles at a density;
-4. :func:`targets` – PRT target, PCD target and height map of the after state;
+4. :func:`after_targets` – PRT target, PCD target and height map of the after state;
 5. :func:`trajectory_and_start` – the resampled planner trajectory and the tip's start;
 
-and :func:`build_datapoint` / :func:`prepare_datapoint` composing them. The after state's *surface
+:func:`assemble` making the datapoint of their outputs, and :func:`build_datapoint` /
+:func:`prepare_datapoint` composing them in memory. The workflow's stage files are written and read
+here (:func:`save_targets`, :func:`save_trajectory` and their readers), and the CLI takes the same path. The after state's *surface
 points* (for the PCD target and the height map) are its full-resolution fused cloud, or, for a state
 given only as a mesh, points sampled on the mesh (:func:`surface_points`). Units: metres, robot base frame.
 """
@@ -18,12 +20,15 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
 
 from dpsi.datapoint import Datapoint
-from dpsi.heightmap import height_map
+from dpsi.effectors import Effector
+from dpsi.files import load_arrays, save_arrays
+from dpsi.heightmap import footprint_centre, height_map
 from dpsi.motions import Trajectory, read_waypoints, resample
 from dpsi.pointclouds import View
 from dpsi.rawdata import RawDatapoint, RawDataset, StateSource
@@ -94,20 +99,61 @@ def fill_particles(mesh: o3d.geometry.TriangleMesh, density: float, name: str = 
     return particles
 
 
-def footprint_centre(particles: np.ndarray) -> np.ndarray:
-    """Middle (x, y) in m of the particles' footprint: the height-map centre, also the simulated box's
-    centre (:attr:`dpsi.simulation.Scene.centre_xy`)."""
-    return 0.5 * (particles[:, :2].min(axis=0) + particles[:, :2].max(axis=0))
+@dataclass(frozen=True)
+class AfterTargets:
+    """Loss targets of the after state (SPEC §3.4–3.5): the PRT target (k, 3) and PCD target (m, 3) in m,
+    and the 32 × 32 height map (m) centred at ``centre_xy`` (2,) m, empty cells at ``table_z`` (m)."""
+
+    prt_target: np.ndarray
+    pcd_target: np.ndarray
+    heightmap: np.ndarray
+    centre_xy: np.ndarray
+    table_z: float
 
 
-def targets(after_mesh: o3d.geometry.TriangleMesh, after_points: np.ndarray, n_particles: int, density: float,
-            centre_xy, table_z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Loss targets of the after state (SPEC §3.4–3.5): the PRT target (particles in ``after_mesh``, at
-    most ``n_particles``, starting at ``density``), the PCD target (``after_points`` voxel-downsampled)
-    and the 32 × 32 height map (m) of ``after_points`` centred at ``centre_xy`` (m), empty cells at
-    ``table_z``."""
-    prt, _ = prt_target(after_mesh, density, n_particles)
-    return prt, pcd_target(after_points), height_map(after_points, centre_xy, floor=table_z)
+_TARGET_ARRAYS = ("prt_target", "pcd_target", "heightmap", "centre_xy")
+_TRAJECTORY_ARRAYS = ("positions", "yaw", "start")
+
+
+def after_targets(after_mesh: o3d.geometry.TriangleMesh, after_points: np.ndarray, particles: np.ndarray,
+                  density: float, table_z: float) -> AfterTargets:
+    """The targets of the after state: the PRT target (particles in ``after_mesh``, at most as many as
+    ``particles``, starting at ``density`` particles/m³), the PCD target (``after_points``
+    voxel-downsampled) and the height map of ``after_points`` centred on the footprint of ``particles``."""
+    centre = footprint_centre(particles)
+    prt, _ = prt_target(after_mesh, density, len(particles))
+    return AfterTargets(prt, pcd_target(after_points), height_map(after_points, centre, floor=table_z), centre,
+                        float(table_z))
+
+
+def save_targets(path: str | os.PathLike, targets: AfterTargets) -> None:
+    """Write the targets stage's file (.npz) atomically."""
+    save_arrays(path, {"table_z": targets.table_z}, {k: getattr(targets, k) for k in _TARGET_ARRAYS})
+
+
+def load_targets(path: str | os.PathLike) -> AfterTargets:
+    """Read a file written by :func:`save_targets`."""
+    meta, arrays = load_arrays(path, _TARGET_ARRAYS, "after-state targets")
+    return AfterTargets(**{k: a.astype(float) for k, a in arrays.items()}, table_z=float(meta["table_z"]))
+
+
+def save_trajectory(path: str | os.PathLike, trajectory: Trajectory, start) -> None:
+    """Write the trajectory stage's file (.npz: resampled trajectory and the tip's start) atomically."""
+    save_arrays(path, {"dt": trajectory.dt}, {"positions": trajectory.positions, "yaw": trajectory.yaw,
+                                              "start": np.asarray(start, dtype=float)})
+
+
+def load_trajectory(path: str | os.PathLike) -> tuple[Trajectory, np.ndarray]:
+    """Read a file written by :func:`save_trajectory`: (trajectory, start (3,) in m)."""
+    meta, a = load_arrays(path, _TRAJECTORY_ARRAYS, "trajectory")
+    return Trajectory(a["positions"], a["yaw"], float(meta["dt"])), a["start"].astype(float)
+
+
+def assemble(datapoint_id: str, motion: str, effector: Effector, particles: np.ndarray, density: float,
+             trajectory: Trajectory, start, targets: AfterTargets) -> Datapoint:
+    """The prepared datapoint from the outputs of the stages (particles at ``density`` particles/m³)."""
+    return Datapoint(datapoint_id, motion, effector, particles, 1.0 / density, trajectory, np.asarray(start, float),
+                     targets.table_z, targets.pcd_target, targets.prt_target, targets.heightmap, targets.centre_xy)
 
 
 def trajectory_and_start(path: str | os.PathLike) -> tuple[Trajectory, np.ndarray]:
@@ -117,18 +163,16 @@ def trajectory_and_start(path: str | os.PathLike) -> tuple[Trajectory, np.ndarra
     return resample(waypoints), waypoints.xyz[0].copy()
 
 
-def build_datapoint(datapoint: RawDatapoint, before_mesh: o3d.geometry.TriangleMesh,
+def build_datapoint(datapoint: RawDatapoint, effector: Effector, before_mesh: o3d.geometry.TriangleMesh,
                     after_mesh: o3d.geometry.TriangleMesh, after_points: np.ndarray, density: float,
                     table_z: float) -> Datapoint:
     """The prepared datapoint from the reconstructed states: particles filled in ``before_mesh`` at
     ``density`` particles/m³, targets from ``after_mesh`` and the after surface points, and the
-    trajectory of the raw ``datapoint``."""
+    trajectory of the raw ``datapoint``, made with ``effector``."""
     particles = fill_particles(before_mesh, density, f"{datapoint.id} before mesh")
-    centre = footprint_centre(particles)
-    prt, pcd, hm = targets(after_mesh, after_points, len(particles), density, centre, table_z)
+    targets = after_targets(after_mesh, after_points, particles, density, table_z)
     trajectory, start = trajectory_and_start(datapoint.trajectory)
-    return Datapoint(datapoint.id, datapoint.motion, datapoint.effector, particles, 1.0 / density, trajectory,
-                     start, table_z, pcd, prt, hm, centre)
+    return assemble(datapoint.id, datapoint.motion, effector, particles, density, trajectory, start, targets)
 
 
 def prepare_datapoint(dataset: RawDataset, datapoint: str | RawDatapoint, density: float) -> Datapoint:
@@ -139,8 +183,10 @@ def prepare_datapoint(dataset: RawDataset, datapoint: str | RawDatapoint, densit
     _, before_mesh = reconstruct_state(datapoint.before, dataset.workspace, dataset.table_z, f"{datapoint.id} before")
     after_points, after_mesh = reconstruct_state(datapoint.after, dataset.workspace, dataset.table_z,
                                                  f"{datapoint.id} after")
-    return build_datapoint(datapoint, before_mesh, after_mesh, after_points, density, dataset.table_z)
+    effector = dataset.effectors[datapoint.effector].effector()
+    return build_datapoint(datapoint, effector, before_mesh, after_mesh, after_points, density, dataset.table_z)
 
 
 __all__ = ["SURFACE_SPACING", "fuse_state", "surface_points", "state_points", "state_mesh", "reconstruct_state",
-           "fill_particles", "footprint_centre", "targets", "trajectory_and_start", "build_datapoint", "prepare_datapoint"]
+           "fill_particles", "AfterTargets", "after_targets", "save_targets", "load_targets", "save_trajectory",
+           "load_trajectory", "trajectory_and_start", "assemble", "build_datapoint", "prepare_datapoint"]

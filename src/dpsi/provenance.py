@@ -11,7 +11,7 @@ import logging
 import subprocess
 from pathlib import Path
 
-from .pointclouds import atomic_output
+from .files import atomic_output
 
 PACKAGES = ("dpsi", "taichi", "numpy", "scipy", "pandas", "open3d", "pymeshlab", "matplotlib", "snakemake")
 

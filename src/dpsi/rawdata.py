@@ -18,6 +18,7 @@ the reconstruction at the matching stage (fusion, meshing, or filling).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 from collections.abc import Sequence
@@ -28,15 +29,14 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from dpsi.effectors import BUILT_IN
+from dpsi.datasets import COLUMNS, ROLES
+from dpsi.effectors import BUILT_IN, Effector, by_name, effector_from_mesh
 from dpsi.motions import MOTIONS, read_waypoints
 from dpsi.pointclouds import (CLOUD_SUFFIXES, MESH_SUFFIXES, TRANSFORM_SUFFIXES, View, atomic_output,
                               check_points, check_rigid, read_mesh, read_points, read_transform, write_points,
                               write_transform)
 from dpsi.reconstruction.meshing import is_watertight
 
-COLUMNS = ("id", "motion", "effector", "level", "role", "material")
-ROLES = ("train", "validation", "ood")
 STATES = ("before", "after")
 EFFECTOR_KINDS = tuple(BUILT_IN)
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -71,6 +71,13 @@ class EffectorSpec:
     name: str
     kind: str | None = None
     obj: Path | None = None
+
+    def effector(self) -> Effector:
+        """The shape: the built-in one of ``kind`` under this name, or ``obj`` sampled into a signed-distance
+        grid (tip at the mesh's origin)."""
+        if self.obj is not None:
+            return effector_from_mesh(self.obj, self.name)
+        return dataclasses.replace(by_name(self.kind), name=self.name)
 
 
 @dataclass(frozen=True)
@@ -111,7 +118,10 @@ def _fail(path: Path, problem: str):
     raise RawDataError(f"{path}: {problem}")
 
 
-def _read_config(root: Path) -> tuple[float, tuple | None, dict[str, EffectorSpec]]:
+def read_dataset_config(root: str | os.PathLike) -> tuple[float, tuple | None, dict[str, EffectorSpec]]:
+    """``root/dataset.yaml`` validated: table height (m), workspace box (lo, hi) in m or ``None``, and the
+    effectors by name (the built-ins and the dataset's own)."""
+    root = Path(root)
     path = root / "dataset.yaml"
     effectors = {name: EffectorSpec(name, kind=name) for name in EFFECTOR_KINDS}
     if not path.exists():
@@ -242,6 +252,13 @@ def _state_source(folder: Path, state: str) -> StateSource:
         raise RawDataError(str(e)) from None
 
 
+def trajectory_file(root: str | os.PathLike, datapoint_id: str, motion: str) -> Path:
+    """The planner trajectory of a datapoint: its own ``<id>/trajectory.csv`` if there is one, else the
+    motion's ``trajectories/<motion>.csv``."""
+    own = Path(root) / datapoint_id / "trajectory.csv"
+    return own if own.is_file() else Path(root) / "trajectories" / f"{motion}.csv"
+
+
 def load_raw_dataset(root: str | os.PathLike, only: Sequence[str] | None = None) -> RawDataset:
     """Validate the raw dataset under ``root`` (the table, and every file, cloud, transform, mesh and
     trajectory of its datapoints — or of the datapoints named in ``only`` — read once) and describe it.
@@ -249,7 +266,7 @@ def load_raw_dataset(root: str | os.PathLike, only: Sequence[str] | None = None)
     root = Path(root)
     if not root.is_dir():
         _fail(root, "raw dataset folder not found")
-    table_z, workspace, effectors = _read_config(root)
+    table_z, workspace, effectors = read_dataset_config(root)
     df = _read_table(root, effectors)
     if only is not None:
         unknown = sorted(set(only) - set(df["id"]))
@@ -262,9 +279,7 @@ def load_raw_dataset(root: str | os.PathLike, only: Sequence[str] | None = None)
         folder = root / r.id
         if not folder.is_dir():
             _fail(folder, f"folder of datapoint {r.id} (listed in datapoints.csv) not found")
-        trajectory = folder / "trajectory.csv"
-        if not trajectory.is_file():
-            trajectory = root / "trajectories" / f"{r.motion}.csv"
+        trajectory = trajectory_file(root, r.id, r.motion)
         if trajectory not in checked_trajectories:
             try:
                 read_waypoints(trajectory)
@@ -312,5 +327,5 @@ def write_datapoints_table(path: str | os.PathLike, rows: list[dict]) -> None:
         df[list(COLUMNS)].to_csv(tmp, index=False)
 
 
-__all__ = ["COLUMNS", "ROLES", "STATES", "EFFECTOR_KINDS", "RawDataError", "StateSource", "EffectorSpec",
+__all__ = ["read_dataset_config", "trajectory_file", "STATES", "EFFECTOR_KINDS", "RawDataError", "StateSource", "EffectorSpec",
            "RawDatapoint", "RawDataset", "load_raw_dataset", "write_views", "write_datapoints_table"]

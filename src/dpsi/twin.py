@@ -34,17 +34,17 @@ import pandas as pd
 import yaml
 
 from dpsi.capture import capture
-from dpsi.datasets import EFFECTORS, LONG_MOTIONS, MOTION_A, MOTION_B
 from dpsi.effectors import by_name
 from dpsi.heightmap import height_map
 from dpsi.motions import get_motion, plan, resample, write_waypoints
 from dpsi.parameters import Parameters
-from dpsi.pointclouds import atomic_output
+from dpsi.files import atomic_output, load_arrays, save_arrays
 from dpsi.prepare import surface_points
-from dpsi.rawdata import ROLES, write_datapoints_table, write_views
+from dpsi.rawdata import write_datapoints_table, write_views
 from dpsi.reconstruction.filling import fill, lattice_spacing, particles_to_mesh
 from dpsi.shapes import random_lump
 from dpsi.simulation import Scene, Simulator, SimulatorConfig
+from dpsi.twin_plan import MATERIALS, TRUTH_FILE, Plan, default_plan, load_truth, plan_rows
 
 CENTRE = (-0.52, 0.01)
 """Where the lumps lie on the table (x, y in m, robot base frame), as in the published real data."""
@@ -56,107 +56,13 @@ TABLE_Z = 0.0
 WORKSPACE = ((-0.62, -0.09, -0.01), (-0.42, 0.11, 0.10))
 """Workspace box (lo, hi) in m kept by fusion: the lump, anything a motion pushes, and table around it."""
 
-MATERIALS = {
-    "clay": Parameters(E=5e4, nu=0.3, rho=1200.0, yield_stress=2.5e3, mu_table=2.0, mu_effector=0.3),
-    "slime": Parameters(E=1.2e4, nu=0.45, rho=1050.0, yield_stress=1.2e3, mu_table=0.3, mu_effector=0.5),
-    "soil": Parameters(E=6e4, nu=0.3, rho=1600.0, yield_stress=3e3, mu_table=1.8, mu_effector=1.5),
-}
-"""Ground truth per material. Clay: away from the hand-picked literature values (so that the baseline is
-not the answer), with the frictions that level 1 holds fixed (SPEC §1). Slime (cloud slime): softer
-(E 12 kPa), nearly incompressible (ν 0.45), light (1050 kg/m³), yielding early (1.2 kPa) and slippery on
-the table (0.3) but somewhat sticky on the effector (0.5). Soil (moist, compacted): stiffer (E 60 kPa),
-compressible (ν 0.3), dense (1600 kg/m³), stronger (3 kPa) and strongly frictional (table 1.8,
-effector 1.5)."""
-
 FINE_CONFIG = SimulatorConfig(dx=0.004, max_particles=22000)
 """Simulator of the twin: 4 mm cells (identification uses 6 mm) and room for the largest lump."""
 
 FINE_DENSITY = 1.5e8
 """Particles/m³ of the twin's simulation (1.9 mm apart; identification uses 4e7–8e7)."""
 
-TRUTH_FILE = "truth.json"
 GROUND_TRUTH_FILE = "truth.npz"
-
-
-@dataclass(frozen=True)
-class Group:
-    """``count`` datapoints of each motion × effector, all of one ``material``, ``level`` and ``role``.
-    ``effectors`` ``None`` means each motion's own effector (the long motions)."""
-
-    material: str
-    level: int
-    role: str
-    motions: tuple[str, ...]
-    effectors: tuple[str, ...] | None = None
-    count: int = 1
-
-    def __post_init__(self):
-        object.__setattr__(self, "motions", tuple(self.motions))
-        if self.effectors is not None:
-            object.__setattr__(self, "effectors", tuple(self.effectors))
-            for e in self.effectors:
-                by_name(e)
-        if self.role not in ROLES:
-            raise ValueError(f"group role must be one of {list(ROLES)}, not {self.role!r}")
-        if self.level not in (1, 2):
-            raise ValueError(f"group level must be 1 or 2, not {self.level!r}")
-        if not isinstance(self.count, int) or self.count < 0:
-            raise ValueError(f"group count must be a non-negative integer, not {self.count!r}")
-        for name in self.motions:
-            motion = get_motion(name)
-            if motion.level not in (None, self.level):
-                raise ValueError(f"motion {name} belongs to level {motion.level}, not {self.level}")
-            if self.effectors is None and motion.effector is None:
-                raise ValueError(f"motion {name} has no effector of its own: give the group's effectors")
-
-    def rows(self) -> list[dict]:
-        """Datapoints-table rows, ids ``<material>-<motion>-<effector>-<role>-<k>``."""
-        return [dict(id=f"{self.material}-{m}-{e}-{self.role}-{k}", motion=m, effector=e, level=self.level,
-                     role=self.role, material=self.material)
-                for m in self.motions for e in (self.effectors or (get_motion(m).effector,))
-                for k in range(self.count)]
-
-
-Plan = tuple[Group, ...]
-"""Which datapoints a twin has: a sequence of groups."""
-
-
-def default_plan(train: int = 2, validation: int = 2, ood: int = 2, levels=(1, 2),
-                 effectors=EFFECTORS, other_materials=("slime", "soil")) -> Plan:
-    """The SPEC §6 datapoints: per level ``train`` clay datapoints of each motion × effector and
-    ``validation`` of motion B per effector; ``ood`` of each long motion with its effector (level 2);
-    for each of ``other_materials`` one poking-shifting-2 datapoint with the cylinder and one
-    flattening datapoint to validate on."""
-    groups = []
-    for level in levels:
-        groups += [Group("clay", level, "train", (MOTION_A[level], MOTION_B[level]), effectors, train),
-                   Group("clay", level, "validation", (MOTION_B[level],), effectors, validation)]
-    groups.append(Group("clay", 2, "ood", LONG_MOTIONS, None, ood))
-    for material in other_materials:
-        groups += [Group(material, 2, "train", ("poking-shifting-2",), ("cylinder",), 1),
-                   Group(material, 2, "validation", ("flattening",), None, 1)]
-    return tuple(g for g in groups if g.count > 0)
-
-
-def plan_from_config(groups: list[dict]) -> Plan:
-    """A plan from a list of mappings with the fields of :class:`Group` (e.g. read from YAML)."""
-    try:
-        return tuple(Group(**g) for g in groups)
-    except TypeError as e:
-        raise ValueError(f"bad twin plan group ({e}); fields are material, level, role, motions, effectors, "
-                         "count") from None
-
-
-def plan_rows(plan: Plan) -> list[dict]:
-    """All datapoints-table rows of ``plan``; ``ValueError`` if two groups make the same id."""
-    rows = [row for group in plan for row in group.rows()]
-    ids = [r["id"] for r in rows]
-    dup = sorted({i for i in ids if ids.count(i) > 1})
-    if dup:
-        raise ValueError(f"twin plan makes duplicate datapoint id(s) {dup}; merge the groups")
-    if not rows:
-        raise ValueError("twin plan has no datapoints")
-    return rows
 
 
 def write_twin_table(root: str | os.PathLike, plan: Plan | None = None, seed: int = 0,
@@ -188,16 +94,13 @@ def write_twin_table(root: str | os.PathLike, plan: Plan | None = None, seed: in
 
 def read_truth(root: str | os.PathLike) -> tuple[dict[str, Parameters], int, SimulatorConfig, float]:
     """Ground truth and generator settings of a twin: (parameters by material, seed, simulator config,
-    density in particles/m³), from ``root/truth.json``."""
-    path = Path(root) / TRUTH_FILE
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: twin truth file not found; run write_twin_table first")
+    density in particles/m³), from ``root/truth.json`` (:func:`dpsi.twin_plan.load_truth`)."""
+    truth = load_truth(root)
     try:
-        truth = json.loads(path.read_text())
-        materials = {m: Parameters.checked(**v) for m, v in truth["materials"].items()}
-        return materials, int(truth["seed"]), SimulatorConfig(**truth["simulator"]), float(truth["density"])
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
-        raise ValueError(f"{path}: not a twin truth file ({e})") from None
+        config = SimulatorConfig(**truth["simulator"])
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{Path(root) / TRUTH_FILE}: bad simulator settings ({e})") from None
+    return truth["materials"], truth["seed"], config, truth["density"]
 
 
 @functools.cache
@@ -224,31 +127,21 @@ class GroundTruth:
     heightmap: np.ndarray
 
 
+_GROUND_TRUTH_ARRAYS = ("before_particles", "after_particles", "centre_xy", "heightmap")
+
+
 def write_ground_truth(path: str | os.PathLike, truth: GroundTruth) -> None:
     """Write ``truth`` to ``path`` (.npz) atomically."""
     meta = {"id": truth.id, "material": truth.material, "parameters": truth.parameters.as_dict(),
             "particle_volume": truth.particle_volume, "table_z": truth.table_z}
-    with atomic_output(path) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez_compressed(f, meta=json.dumps(meta), before_particles=truth.before_particles,
-                                after_particles=truth.after_particles, centre_xy=truth.centre_xy,
-                                heightmap=truth.heightmap)
+    save_arrays(path, meta, {k: getattr(truth, k) for k in _GROUND_TRUTH_ARRAYS})
 
 
 def load_ground_truth(path: str | os.PathLike) -> GroundTruth:
     """Read a ground truth written by :func:`write_ground_truth`; errors name the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: twin ground-truth file not found")
-    try:
-        with np.load(path) as data:
-            meta = json.loads(str(data["meta"]))
-            meta["parameters"] = Parameters.checked(**meta["parameters"])
-            arrays = {k: np.asarray(data[k], float) for k in ("before_particles", "after_particles",
-                                                             "centre_xy", "heightmap")}
-    except (KeyError, ValueError, OSError) as e:
-        raise ValueError(f"{path}: not a twin ground-truth file ({e})") from None
-    return GroundTruth(**meta, **arrays)
+    meta, arrays = load_arrays(path, _GROUND_TRUTH_ARRAYS, "twin ground-truth")
+    meta["parameters"] = Parameters.checked(**meta["parameters"])
+    return GroundTruth(**meta, **{k: a.astype(float) for k, a in arrays.items()})
 
 
 def _row(root: Path, datapoint_id: str) -> pd.Series:
@@ -320,7 +213,6 @@ def generate_twin(root: str | os.PathLike, plan: Plan | None = None, seed: int =
     return [generate_datapoint(root, r["id"]) for r in rows]
 
 
-__all__ = ["CENTRE", "CENTRE_JITTER", "TABLE_Z", "WORKSPACE", "MATERIALS", "FINE_CONFIG", "FINE_DENSITY",
-           "TRUTH_FILE", "GROUND_TRUTH_FILE", "Group", "Plan", "default_plan", "plan_from_config", "plan_rows",
-           "write_twin_table", "read_truth", "simulator", "GroundTruth", "write_ground_truth",
+__all__ = ["CENTRE", "CENTRE_JITTER", "TABLE_Z", "WORKSPACE", "FINE_CONFIG", "FINE_DENSITY",
+           "GROUND_TRUTH_FILE", "write_twin_table", "read_truth", "simulator", "GroundTruth", "write_ground_truth",
            "load_ground_truth", "generate_datapoint", "generate_twin"]

@@ -5,7 +5,6 @@ makes."""
 import itertools
 
 ANALYSIS_RUN = f"{RESULTS}/{{analysis}}/{{material}}/{{start}}/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
-MAIN_RUN = f"{RESULTS}/runs/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
 
 
 def in_main_sweep(material, start, level, loss, dataset, seed, iterations):
@@ -30,13 +29,13 @@ def analysis_runs(
     materials=("clay",),
     starts=("random",),
 ):
-    """Folder → labels (material, start, level, loss, dataset, seed) of every run of `analysis`: all
+    """Folders of every run of `analysis` (each run's summary carries its labels): all
     combinations of the given losses, datasets, seeds, materials and starts (`random` or `hand-picked`
     initial values) at `level`, with the analysis's iterations. A run that the main sweep makes anyway
     is taken from runs/. Fails at start-up, naming the datapoints, if a dataset cannot be formed.
     """
     iterations = ANALYSES[analysis]["iterations"]
-    runs = {}
+    runs = []
     for material, start, loss, dataset, seed in itertools.product(
         materials, starts, losses, datasets, seeds
     ):
@@ -52,7 +51,7 @@ def analysis_runs(
             folder = ANALYSIS_RUN.format(
                 analysis=analysis, material=material, start=start, **run
             )
-        runs[folder] = dict(material=material, start=start, **run)
+        runs.append(folder)
     return runs
 
 

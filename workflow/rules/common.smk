@@ -1,40 +1,111 @@
-"""Configuration, the datapoints table and helpers shared by every rule file."""
+"""Configuration, the datapoints table and helpers shared by every rule file. Only the light layer of the
+library is imported here (no Taichi, Open3D or PyMeshLab), so that parsing the workflow stays fast.
+"""
 
+import ast
+import functools
 import re
 from pathlib import Path
 
 import pandas as pd
+import yaml
 from snakemake.exceptions import WorkflowError
 from snakemake.utils import validate
 
 from dpsi import datasets as dpsi_datasets
-from dpsi import twin as dpsi_twin
+from dpsi import twin_plan
 
 validate(config, "../schemas/config.schema.yaml")
 
+OUT = config["results"]
+"""Output root of this configuration: its results, tables, figures and logs."""
 RAW = f"raw/{config['dataset']}"
-RESULTS = f"results/{config['dataset']}"
-LIBRARY = Path(workflow.main_snakefile).parent / "src" / "dpsi"
+RESULTS = f"{OUT}/{config['dataset']}"
+TABLES_DIR = f"{OUT}/tables"
+FIGURES_DIR = f"{OUT}/figures"
+LOGS = f"{OUT}/logs"
+SRC = Path(workflow.main_snakefile).parent / "src"
+SCRIPTS = Path(workflow.main_snakefile).parent / "workflow" / "scripts"
+GPU = 1 if config.get("taichi_arch") == "cuda" else 0
+"""GPUs a simulating job asks for."""
 
 
-def library(*modules):
-    """Source files of the dpsi modules a rule uses (names relative to src/dpsi, without .py; a package
-    stands for all its files). Declared as inputs so that a change of the library code makes the
-    rule's outputs out of date, as a change of its script does."""
-    files = []
-    for module in modules:
-        path = LIBRARY / module
-        files += (
-            sorted(path.glob("*.py")) if path.is_dir() else [path.with_suffix(".py")]
-        )
-    return [str(f) for f in files]
+def _module_file(name):
+    """Source file of the dpsi module or package ``name`` (dotted), or None if there is none."""
+    base = SRC.joinpath(*name.split("."))
+    for path in (base.with_suffix(".py"), base / "__init__.py"):
+        if path.is_file():
+            return path
+    return None
+
+
+def _imported(path, dotted):
+    """Dotted names of the dpsi modules the file ``path`` (of module ``dotted``) may import, its packages
+    included."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            parts = dotted.split(".")
+            keep = len(parts) - node.level + (path.name == "__init__.py")
+            package = parts[:keep]
+            base = (
+                ".".join(package + ([node.module] if node.module else []))
+                if node.level
+                else node.module
+            )
+            names.add(base)
+            names.update(f"{base}.{alias.name}" for alias in node.names)
+    parents = {
+        ".".join(n.split(".")[:k]) for n in names for k in range(1, n.count(".") + 1)
+    }
+    return sorted(n for n in names | parents if n == "dpsi" or n.startswith("dpsi."))
+
+
+@functools.cache
+def code(script):
+    """Library files that ``workflow/scripts/<script>.py`` imports, directly or through other modules
+    (found with ast): declared as inputs, so that a change of library code reruns what depends on it, as
+    a change of the script does."""
+    files, todo, seen = set(), [("__main__", SCRIPTS / f"{script}.py")], set()
+    while todo:
+        dotted, path = todo.pop()
+        for name in _imported(path, dotted):
+            found = _module_file(name)
+            if found is not None and name not in seen:
+                seen.add(name)
+                files.add(found)
+                todo.append((name, found))
+    return sorted(map(str, files))
+
+
+def log_file(name):
+    """The log of a job: ``<output root>/logs/<name>.log``."""
+    return f"{LOGS}/{name}.log"
+
+
+def table_files(name, caption):
+    """A table's CSV (in the report with ``caption``), Markdown and LaTeX files; scripts write the CSV's
+    path with dpsi.reporting.tables.write_table, which writes the other two beside it.
+    """
+    path = f"{TABLES_DIR}/{name}"
+    csv = report(f"{path}.csv", caption=caption, category="Tables")
+    return [csv, f"{path}.md", f"{path}.tex"]
+
+
+def figure_files(name, caption):
+    """A figure's PNG (in the report with ``caption``) and PDF."""
+    path = f"{FIGURES_DIR}/{name}"
+    png = report(f"{path}.png", caption=caption, category="Figures")
+    return [png, f"{path}.pdf"]
 
 
 def datapoints_table():
     """The datapoints table: planned by the twin config, or read from the raw dataset."""
     if "twin" in config:
-        plan = dpsi_twin.plan_from_config(config["twin"]["groups"])
-        return pd.DataFrame(dpsi_twin.plan_rows(plan))
+        plan = twin_plan.plan_from_config(config["twin"]["groups"])
+        return pd.DataFrame(twin_plan.plan_rows(plan))
     path = Path(RAW) / "datapoints.csv"
     if not path.is_file():
         raise WorkflowError(
@@ -65,10 +136,14 @@ def prepared(ids):
     return [f"{RESULTS}/prepared/{i}.npz" for i in ids]
 
 
-def runs(level=None):
-    """Summary files of every identification run (of one level if given)."""
+MAIN_RUN = f"{RESULTS}/runs/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
+"""Folder of a run of the main sweep."""
+
+
+def runs(level=None, name="summary.json"):
+    """``name`` (summary.json or log.csv) of every identification run (of one level if given)."""
     return expand(
-        f"{RESULTS}/runs/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}/summary.json",
+        f"{MAIN_RUN}/{name}",
         level=[level] if level else IDENT["levels"],
         loss=IDENT["losses"],
         dataset=IDENT["datasets"],
@@ -105,6 +180,8 @@ except ValueError as err:
     )
 
 
+OOD = 2 in IDENT["levels"]
+"""Whether the out-of-distribution evaluation runs (it uses the level-2 parameters)."""
 TABLES = ["motions", "parameters", "best_params", "ood_heightmap", "recovery_error"]
 OOD_SOURCES = [f"{RESULTS}/ood/hand-picked.json"] + expand(
     f"{RESULTS}/ood/{{loss}}/{{dataset}}.json",
@@ -124,8 +201,31 @@ def twin_settings():
     }
 
 
+def raw_config_files():
+    """The raw dataset's table and layout (dataset.yaml, with the mesh files of its own effectors)."""
+    layout = Path(f"{RAW}/dataset.yaml")
+    files = [f"{RAW}/datapoints.csv"]
+    if "twin" in config or layout.is_file():
+        files.append(str(layout))
+    if layout.is_file():
+        effectors = (yaml.safe_load(layout.read_text()) or {}).get("effectors") or {}
+        files += [
+            f"{RAW}/{e['obj']}"
+            for e in effectors.values()
+            if isinstance(e, dict) and "obj" in e
+        ]
+    return files
+
+
 def raw_datapoint(wildcards):
-    return [f"{RAW}/{wildcards.id}", f"{RAW}/datapoints.csv"]
+    """Raw inputs of one datapoint: its folder, the dataset's table and layout, and the planner
+    trajectory of its motion (when the dataset has one shared by the motion's datapoints).
+    """
+    motion = TABLE.set_index("id").motion[wildcards.id]
+    shared = Path(f"{RAW}/trajectories/{motion}.csv")
+    return [f"{RAW}/{wildcards.id}", *raw_config_files()] + (
+        [str(shared)] if shared.is_file() else []
+    )
 
 
 def truth_file():

@@ -7,26 +7,18 @@ the same time.
 if "cost" in ANALYSES:
     COST = ANALYSES["cost"]
     COST_RECORDS = [
-        f"results/cost/{motion}/density{density:g}.json"
+        f"{OUT}/cost/{motion}/density{density:g}.json"
         for motion in COST["motions"]
         for density in COST["densities"]
     ]
 
     rule cost_measure:
         input:
-            code=library(
-                "bench",
-                "simulation",
-                "shapes",
-                "reconstruction",
-                "motions",
-                "effectors",
-                "parameters",
-            ),
+            code=code("cost_measure"),
         output:
-            "results/cost/{motion}/density{density}.json",
+            f"{OUT}/cost/{{motion}}/density{{density}}.json",
         log:
-            "logs/cost/{motion}_density{density}.log",
+            log_file("cost/{motion}_density{density}"),
         wildcard_constraints:
             motion="|".join(COST["motions"]),
             density=r"[0-9.]+(e[+-]?[0-9]+)?",
@@ -36,7 +28,7 @@ if "cost" in ANALYSES:
         resources:
             mem_mb=4000,
             runtime=30 + 5 * COST["measured_iterations"],
-            gpu=1 if config.get("taichi_arch") == "cuda" else 0,
+            gpu=GPU,
             timing=1,
         params:
             measured_iterations=COST["measured_iterations"],
@@ -47,17 +39,11 @@ if "cost" in ANALYSES:
     rule cost_table:
         input:
             records=COST_RECORDS,
-            code=library("reporting/cost", "reporting/tables"),
+            code=code("cost_table"),
         output:
-            csv=report(
-                "results/tables/cost.csv",
-                caption="../report/cost.rst",
-                category="Tables",
-            ),
-            md="results/tables/cost.md",
-            tex="results/tables/cost.tex",
+            table=table_files("cost", "../report/cost.rst"),
         log:
-            "logs/cost/table.log",
+            log_file("cost/table"),
         conda:
             "../envs/dpsi.yaml"
         threads: 1
@@ -69,4 +55,4 @@ if "cost" in ANALYSES:
         script:
             "../scripts/cost_table.py"
 
-    ANALYSIS_TABLES += rules.cost_table.output
+    ANALYSIS_TABLES += rules.cost_table.output.table

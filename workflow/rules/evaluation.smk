@@ -5,61 +5,38 @@ parameters of each (loss, dataset), and with the hand-picked ones."""
 rule ood_identified:
     input:
         summaries=expand(
-            f"{RESULTS}/runs/L2/{{{{loss}}}}/{{{{dataset}}}}/seed{{seed}}/summary.json",
+            f"{MAIN_RUN}/summary.json",
+            level=2,
             seed=IDENT["seeds"],
+            allow_missing=True,
         ),
-        datapoints=prepared(ood_ids()) if 2 in IDENT["levels"] else [],
-        code=library(
-            "identification",
-            "simulation",
-            "losses",
-            "parameters",
-            "datapoint",
-            "reporting/frames",
-        ),
+        datapoints=prepared(ood_ids()) if OOD else [],
+        code=code("ood"),
     output:
         records=f"{RESULTS}/ood/{{loss}}/{{dataset}}.json",
         particles=f"{RESULTS}/ood/{{loss}}/{{dataset}}.npz",
     log:
-        f"logs/{config['dataset']}/ood/{{loss}}_{{dataset}}.log",
+        log_file("ood/{loss}_{dataset}"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
     resources:
         mem_mb=3000,
         runtime=120,
-        gpu=1 if config.get("taichi_arch") == "cuda" else 0,
+        gpu=GPU,
     params:
         simulator=simulator_params(),
     script:
         "../scripts/ood.py"
 
 
-rule ood_hand_picked:
+use rule ood_identified as ood_hand_picked with:
     input:
         summaries=[],
-        datapoints=prepared(ood_ids()) if 2 in IDENT["levels"] else [],
-        code=library(
-            "identification",
-            "simulation",
-            "losses",
-            "parameters",
-            "datapoint",
-            "reporting/frames",
-        ),
+        datapoints=prepared(ood_ids()) if OOD else [],
+        code=code("ood"),
     output:
         records=f"{RESULTS}/ood/hand-picked.json",
         particles=f"{RESULTS}/ood/hand-picked.npz",
     log:
-        f"logs/{config['dataset']}/ood/hand-picked.log",
-    conda:
-        "../envs/dpsi.yaml"
-    threads: 1
-    resources:
-        mem_mb=3000,
-        runtime=120,
-        gpu=1 if config.get("taichi_arch") == "cuda" else 0,
-    params:
-        simulator=simulator_params(),
-    script:
-        "../scripts/ood.py"
+        log_file("ood/hand-picked"),

@@ -10,40 +10,27 @@ if "heightmap_losses" in ANALYSES:
         datasets=HEIGHTMAP_LOSSES["datasets"],
         seeds=HEIGHTMAP_LOSSES["seeds"],
     )
-    ANALYSIS_TABLES += [
-        f"results/tables/heightmap_losses.{s}" for s in ("csv", "md", "tex")
-    ]
-    ANALYSIS_FIGURES += [
-        f"results/figures/heightmap_losses.{s}" for s in ("png", "pdf")
-    ]
 
     rule heightmap_losses_results:
         input:
             summaries=run_files(HEIGHTMAP_LOSSES_RUNS, "summary.json"),
             logs=run_files(HEIGHTMAP_LOSSES_RUNS, "log.csv"),
-            code=library("reporting", "parameters"),
+            code=code("heightmap_losses"),
         output:
-            table=report(
-                "results/tables/heightmap_losses.csv",
-                caption="../report/heightmap_losses.rst",
-                category="Tables",
+            table=table_files("heightmap_losses", "../report/heightmap_losses.rst"),
+            figure=figure_files(
+                "heightmap_losses", "../report/heightmap_losses_runs.rst"
             ),
-            other_tables=multiext("results/tables/heightmap_losses", ".md", ".tex"),
-            png=report(
-                "results/figures/heightmap_losses.png",
-                caption="../report/heightmap_losses_runs.rst",
-                category="Figures",
-            ),
-            pdf="results/figures/heightmap_losses.pdf",
         log:
-            "logs/heightmap_losses.log",
+            log_file("heightmap_losses"),
         conda:
             "../envs/dpsi.yaml"
         threads: 1
         resources:
             mem_mb=1000,
             runtime=10,
-        params:
-            labels=list(HEIGHTMAP_LOSSES_RUNS.values()),
         script:
             "../scripts/heightmap_losses.py"
+
+    ANALYSIS_TABLES += rules.heightmap_losses_results.output.table
+    ANALYSIS_FIGURES += rules.heightmap_losses_results.output.figure

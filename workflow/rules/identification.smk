@@ -9,9 +9,6 @@ with the material and the initial values as wildcards, under results/<dataset>/<
 include: "analysis_runs.smk"
 
 
-IDENTIFY_CODE = library(
-    "identification", "simulation", "losses", "optim", "parameters", "datapoint"
-)
 RUN_ANALYSES = [a for a in ("materials", "minima", "heightmap_losses") if a in ANALYSES]
 
 
@@ -20,19 +17,19 @@ rule identify:
         training=lambda w: prepared(training_ids(w.level, w.dataset)),
         validation=lambda w: prepared(validation_ids(w.level)),
         truth=truth_file(),
-        code=IDENTIFY_CODE,
+        code=code("identify"),
     output:
         summary=f"{MAIN_RUN}/summary.json",
         log=f"{MAIN_RUN}/log.csv",
     log:
-        f"logs/{config['dataset']}/identify/L{{level}}_{{loss}}_{{dataset}}_seed{{seed}}.log",
+        log_file("identify/L{level}_{loss}_{dataset}_seed{seed}"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
     resources:
         mem_mb=3000,
         runtime=720,
-        gpu=1 if config.get("taichi_arch") == "cuda" else 0,
+        gpu=GPU,
     params:
         iterations=IDENT["iterations"],
         initial=IDENT.get("initial", "random"),
@@ -53,12 +50,14 @@ if RUN_ANALYSES:
             ),
             # the script compares with the truth of clay: other materials get none in their summary
             truth=lambda w: truth_file() if w.material == "clay" else [],
-            code=IDENTIFY_CODE,
+            code=code("identify"),
         output:
             summary=f"{ANALYSIS_RUN}/summary.json",
             log=f"{ANALYSIS_RUN}/log.csv",
         log:
-            f"logs/{config['dataset']}/{{analysis}}/{{material}}_{{start}}_L{{level}}_{{loss}}_{{dataset}}_seed{{seed}}.log",
+            log_file(
+                "{analysis}/{material}_{start}_L{level}_{loss}_{dataset}_seed{seed}"
+            ),
         wildcard_constraints:
             analysis="|".join(RUN_ANALYSES),
             material="[a-z]+",
@@ -72,20 +71,18 @@ if RUN_ANALYSES:
 rule validate_hand_picked:
     input:
         validation=lambda w: prepared(validation_ids(w.level)),
-        code=library(
-            "identification", "simulation", "losses", "parameters", "datapoint"
-        ),
+        code=code("validate_hand_picked"),
     output:
         f"{RESULTS}/validation/L{{level}}/hand-picked.json",
     log:
-        f"logs/{config['dataset']}/validate/L{{level}}_hand-picked.log",
+        log_file("validate/L{level}_hand-picked"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
     resources:
         mem_mb=3000,
         runtime=60,
-        gpu=1 if config.get("taichi_arch") == "cuda" else 0,
+        gpu=GPU,
     params:
         simulator=simulator_params(),
     script:

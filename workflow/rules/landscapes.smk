@@ -27,19 +27,11 @@ if "landscapes" in ANALYSES:
         input:
             datapoints=lambda w: prepared(LANDSCAPE_DATAPOINTS[w.pair, w.dataset]),
             fixed=parameter_source_inputs(LANDSCAPES["fixed"]),
-            code=library(
-                "landscapes",
-                "identification",
-                "simulation",
-                "losses",
-                "parameters",
-                "parameter_sources",
-                "datapoint",
-            ),
+            code=code("landscape"),
         output:
             f"{RESULTS}/landscapes/{{pair}}/{{dataset}}.npz",
         log:
-            f"logs/{config['dataset']}/landscapes/{{pair}}_{{dataset}}.log",
+            log_file("landscapes/{pair}_{dataset}"),
         wildcard_constraints:
             pair="|".join(LANDSCAPE_PAIRS),
         conda:
@@ -52,7 +44,7 @@ if "landscapes" in ANALYSES:
             + len(LANDSCAPE_DATAPOINTS[w.pair, w.dataset])
             * LANDSCAPES["resolution"] ** 2
             // 2,
-            gpu=1 if config.get("taichi_arch") == "cuda" else 0,
+            gpu=GPU,
         params:
             resolution=LANDSCAPES["resolution"],
             losses=LANDSCAPES["losses"],
@@ -67,20 +59,11 @@ if "landscapes" in ANALYSES:
                 f"{RESULTS}/landscapes/{{{{pair}}}}/{{dataset}}.npz",
                 dataset=LANDSCAPES["datasets"],
             ),
-            code=library("landscapes", "reporting"),
+            code=code("landscape_figure"),
         output:
-            png=report(
-                "results/figures/landscapes_{pair}.png",
-                caption="../report/landscapes.rst",
-                category="Figures",
-            ),
-            pdf=report(
-                "results/figures/landscapes_{pair}.pdf",
-                caption="../report/landscapes.rst",
-                category="Figures",
-            ),
+            figure_files("landscapes_{pair}", "../report/landscapes.rst"),
         log:
-            "logs/landscapes/{pair}_figure.log",
+            log_file("landscapes/{pair}_figure"),
         wildcard_constraints:
             pair="|".join(LANDSCAPE_PAIRS),
         conda:
@@ -89,11 +72,13 @@ if "landscapes" in ANALYSES:
         resources:
             mem_mb=1000,
             runtime=5,
+        params:
+            datasets=LANDSCAPES["datasets"],
         script:
             "../scripts/landscape_figure.py"
 
     LANDSCAPE_FIGURES = expand(
-        "results/figures/landscapes_{pair}.{suffix}",
+        f"{FIGURES_DIR}/landscapes_{{pair}}.{{suffix}}",
         pair=LANDSCAPE_PAIRS,
         suffix=("png", "pdf"),
     )

@@ -24,30 +24,18 @@ if "materials" in ANALYSES:
             for i in dpsi_datasets.validation(TABLE, 2, material)
         }
     )
-    ANALYSIS_TABLES += [f"results/tables/materials.{s}" for s in ("csv", "md", "tex")]
-    ANALYSIS_FIGURES += [f"results/figures/materials.{s}" for s in ("png", "pdf")]
 
     rule materials_results:
         input:
             summaries=run_files(MATERIALS_RUNS, "summary.json"),
             logs=run_files(MATERIALS_RUNS, "log.csv"),
             truth=truth_file(),
-            code=library("reporting", "parameter_sources", "parameters", "twin"),
+            code=code("materials"),
         output:
-            table=report(
-                "results/tables/materials.csv",
-                caption="../report/materials.rst",
-                category="Tables",
-            ),
-            other_tables=multiext("results/tables/materials", ".md", ".tex"),
-            png=report(
-                "results/figures/materials.png",
-                caption="../report/materials_runs.rst",
-                category="Figures",
-            ),
-            pdf="results/figures/materials.pdf",
+            table=table_files("materials", "../report/materials.rst"),
+            figure=figure_files("materials", "../report/materials_runs.rst"),
         log:
-            "logs/materials.log",
+            log_file("materials"),
         conda:
             "../envs/dpsi.yaml"
         threads: 1
@@ -55,8 +43,10 @@ if "materials" in ANALYSES:
             mem_mb=1000,
             runtime=10,
         params:
-            labels=list(MATERIALS_RUNS.values()),
             materials=MATERIALS["materials"],
             validation=MATERIALS_VALIDATION,
         script:
             "../scripts/materials.py"
+
+    ANALYSIS_TABLES += rules.materials_results.output.table
+    ANALYSIS_FIGURES += rules.materials_results.output.figure

@@ -4,15 +4,15 @@ so its run is made once per dataset (with the first seed) and stands for every s
 
 if "minima" in ANALYSES:
     MINIMA = ANALYSES["minima"]
-    MINIMA_RUNS = {
-        **analysis_runs(
+    MINIMA_RUNS = [
+        *analysis_runs(
             "minima",
             level=1,
             losses=[MINIMA["loss"]],
             datasets=MINIMA["datasets"],
             seeds=MINIMA["seeds"],
         ),
-        **analysis_runs(
+        *analysis_runs(
             "minima",
             level=1,
             losses=[MINIMA["loss"]],
@@ -20,37 +20,26 @@ if "minima" in ANALYSES:
             seeds=MINIMA["seeds"][:1],
             starts=["hand-picked"],
         ),
-    }
-    ANALYSIS_TABLES += [f"results/tables/minima.{s}" for s in ("csv", "md", "tex")]
-    ANALYSIS_FIGURES += [f"results/figures/minima.{s}" for s in ("png", "pdf")]
+    ]
 
     rule minima_results:
         input:
             summaries=run_files(MINIMA_RUNS, "summary.json"),
             logs=run_files(MINIMA_RUNS, "log.csv"),
-            code=library("reporting", "parameters"),
+            code=code("minima"),
         output:
-            table=report(
-                "results/tables/minima.csv",
-                caption="../report/minima.rst",
-                category="Tables",
-            ),
-            other_tables=multiext("results/tables/minima", ".md", ".tex"),
-            png=report(
-                "results/figures/minima.png",
-                caption="../report/minima_runs.rst",
-                category="Figures",
-            ),
-            pdf="results/figures/minima.pdf",
+            table=table_files("minima", "../report/minima.rst"),
+            figure=figure_files("minima", "../report/minima_runs.rst"),
         log:
-            "logs/minima.log",
+            log_file("minima"),
         conda:
             "../envs/dpsi.yaml"
         threads: 1
         resources:
             mem_mb=1000,
             runtime=10,
-        params:
-            labels=list(MINIMA_RUNS.values()),
         script:
             "../scripts/minima.py"
+
+    ANALYSIS_TABLES += rules.minima_results.output.table
+    ANALYSIS_FIGURES += rules.minima_results.output.figure

@@ -2,46 +2,30 @@
 clay twin's first out-of-distribution flattening towards the height map of its captured after state.
 """
 
-from dpsi import planning as dpsi_planning
-
 if "planning" in ANALYSES:
     PLANNING = ANALYSES["planning"]
     try:
-        PLANNING_START = dpsi_planning.start_datapoint(TABLE)
+        PLANNING_START = dpsi_datasets.planning_start(TABLE)
     except ValueError as err:
         raise WorkflowError(f"analyses.planning cannot run: {err}")
-    PLANNING_FILES = [f"results/tables/planning.{s}" for s in ("csv", "md", "tex")] + [
-        f"results/figures/planning.{s}" for s in ("png", "pdf")
-    ]
 
     rule greedy_plan:
         input:
             datapoint=prepared([PLANNING_START]),
             parameters=parameter_source_inputs(PLANNING["parameters"]),
-            code=library(
-                "planning",
-                "simulation",
-                "parameter_sources",
-                "parameters",
-                "motions",
-                "effectors",
-                "heightmap",
-                "datapoint",
-                "prepare",
-                "losses",
-            ),
+            code=code("plan"),
         output:
             record=f"{RESULTS}/planning/plan.json",
             arrays=f"{RESULTS}/planning/plan.npz",
         log:
-            f"logs/{config['dataset']}/planning/plan.log",
+            log_file("planning/plan"),
         conda:
             "../envs/dpsi.yaml"
         threads: 1
         resources:
             mem_mb=3000,
             runtime=10 + 15 * PLANNING["actions"],
-            gpu=1 if config.get("taichi_arch") == "cuda" else 0,
+            gpu=GPU,
         params:
             simulator=simulator_params(),
             planning=PLANNING,
@@ -52,20 +36,12 @@ if "planning" in ANALYSES:
         input:
             record=rules.greedy_plan.output.record,
             arrays=rules.greedy_plan.output.arrays,
-            code=library("reporting", "planning", "heightmap", "motions"),
+            code=code("plan_report"),
         output:
-            table=report(
-                PLANNING_FILES[0], caption="../report/planning.rst", category="Tables"
-            ),
-            table_formats=PLANNING_FILES[1:3],
-            figure=report(
-                PLANNING_FILES[3],
-                caption="../report/planning_figure.rst",
-                category="Figures",
-            ),
-            figure_pdf=PLANNING_FILES[4],
+            table=table_files("planning", "../report/planning.rst"),
+            figure=figure_files("planning", "../report/planning_figure.rst"),
         log:
-            "logs/planning_report.log",
+            log_file("planning_report"),
         conda:
             "../envs/dpsi.yaml"
         threads: 1
@@ -75,5 +51,5 @@ if "planning" in ANALYSES:
         script:
             "../scripts/plan_report.py"
 
-    ANALYSIS_TABLES += PLANNING_FILES[:3]
-    ANALYSIS_FIGURES += PLANNING_FILES[3:]
+    ANALYSIS_TABLES += rules.planning_report.output.table
+    ANALYSIS_FIGURES += rules.planning_report.output.figure

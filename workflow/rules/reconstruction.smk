@@ -4,11 +4,11 @@
 rule fuse:
     input:
         raw_datapoint,
-        library("prepare", "reconstruction", "rawdata", "pointclouds"),
+        code("fuse"),
     output:
         f"{RESULTS}/fused/{{id}}_{{state}}.npy",
     log:
-        f"logs/{config['dataset']}/fuse/{{id}}_{{state}}.log",
+        log_file("fuse/{id}_{state}"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
@@ -23,11 +23,11 @@ rule mesh:
     input:
         raw_datapoint,
         points=f"{RESULTS}/fused/{{id}}_{{state}}.npy",
-        code=library("prepare", "reconstruction", "rawdata"),
+        code=code("mesh"),
     output:
         f"{RESULTS}/meshes/{{id}}_{{state}}.obj",
     log:
-        f"logs/{config['dataset']}/mesh/{{id}}_{{state}}.log",
+        log_file("mesh/{id}_{state}"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
@@ -41,11 +41,11 @@ rule mesh:
 rule fill:
     input:
         mesh=f"{RESULTS}/meshes/{{id}}_before.obj",
-        code=library("prepare", "reconstruction"),
+        code=code("fill"),
     output:
         f"{RESULTS}/particles/{{id}}.npy",
     log:
-        f"logs/{config['dataset']}/fill/{{id}}.log",
+        log_file("fill/{id}"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
@@ -63,12 +63,12 @@ rule targets:
         mesh=f"{RESULTS}/meshes/{{id}}_after.obj",
         points=f"{RESULTS}/fused/{{id}}_after.npy",
         particles=f"{RESULTS}/particles/{{id}}.npy",
-        layout=f"{RAW}/datapoints.csv",
-        code=library("prepare", "reconstruction", "heightmap"),
+        raw=raw_config_files(),
+        code=code("targets"),
     output:
         f"{RESULTS}/targets/{{id}}.npz",
     log:
-        f"logs/{config['dataset']}/targets/{{id}}.log",
+        log_file("targets/{id}"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
@@ -77,6 +77,7 @@ rule targets:
         runtime=5,
     params:
         density=config["reconstruction"]["density"],
+        raw=RAW,
     script:
         "../scripts/targets.py"
 
@@ -84,17 +85,20 @@ rule targets:
 rule trajectory:
     input:
         raw_datapoint,
-        library("prepare", "motions", "rawdata"),
+        code("trajectory"),
     output:
         f"{RESULTS}/trajectories/{{id}}.npz",
     log:
-        f"logs/{config['dataset']}/trajectory/{{id}}.log",
+        log_file("trajectory/{id}"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
     resources:
         mem_mb=500,
         runtime=2,
+    params:
+        raw=RAW,
+        row=lambda wildcards: TABLE.set_index("id").loc[wildcards.id].to_dict(),
     script:
         "../scripts/trajectory.py"
 
@@ -104,11 +108,12 @@ rule prepare:
         particles=f"{RESULTS}/particles/{{id}}.npy",
         targets=f"{RESULTS}/targets/{{id}}.npz",
         trajectory=f"{RESULTS}/trajectories/{{id}}.npz",
-        code=library("datapoint"),
+        raw=raw_config_files(),
+        code=code("prepare"),
     output:
         f"{RESULTS}/prepared/{{id}}.npz",
     log:
-        f"logs/{config['dataset']}/prepare/{{id}}.log",
+        log_file("prepare/{id}"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
@@ -118,5 +123,6 @@ rule prepare:
     params:
         density=config["reconstruction"]["density"],
         row=lambda wildcards: TABLE.set_index("id").loc[wildcards.id].to_dict(),
+        raw=RAW,
     script:
         "../scripts/prepare.py"

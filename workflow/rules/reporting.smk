@@ -8,24 +8,12 @@ rule make_tables:
         hand_picked=expand(
             f"{RESULTS}/validation/L{{level}}/hand-picked.json", level=IDENT["levels"]
         ),
-        ood=OOD_SOURCES if 2 in IDENT["levels"] else [],
-        code=library("reporting", "motions", "parameters"),
+        ood=OOD_SOURCES if OOD else [],
+        code=code("tables"),
     output:
-        [
-            report(
-                f"results/tables/{name}.csv",
-                caption=f"../report/{name}.rst",
-                category="Tables",
-            )
-            for name in TABLES
-        ]
-        + [
-            f"results/tables/{name}.{suffix}"
-            for name in TABLES
-            for suffix in ("md", "tex")
-        ],
+        [f for name in TABLES for f in table_files(name, f"../report/{name}.rst")],
     log:
-        "logs/tables.log",
+        log_file("tables"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
@@ -38,37 +26,26 @@ rule make_tables:
 
 rule make_figures:
     input:
-        logs=[s.replace("summary.json", "log.csv") for s in runs()],
-        ood=OOD_SOURCES if 2 in IDENT["levels"] else [],
-        ood_particles=(
-            [f.replace(".json", ".npz") for f in OOD_SOURCES]
-            if 2 in IDENT["levels"]
-            else []
-        ),
-        datapoints=prepared(ood_ids()) if 2 in IDENT["levels"] else [],
-        code=library("reporting", "heightmap"),
+        summaries=runs(),
+        logs=runs(name="log.csv"),
+        ood=OOD_SOURCES if OOD else [],
+        ood_particles=[f.replace(".json", ".npz") for f in OOD_SOURCES] if OOD else [],
+        datapoints=prepared(ood_ids()) if OOD else [],
+        code=code("figures"),
     output:
         runs=[
-            report(
-                f"results/figures/runs_L{level}.{suffix}",
-                caption="../report/runs.rst",
-                category="Figures",
-            )
+            f
             for level in IDENT["levels"]
-            for suffix in ("png", "pdf")
+            for f in figure_files(f"runs_L{level}", "../report/runs.rst")
         ],
         ood=[
-            report(
-                f"results/figures/{kind}_{i}.{suffix}",
-                caption=f"../report/{kind}.rst",
-                category="Figures",
-            )
+            f
             for kind in ("heightmaps", "particles", "frames")
-            for i in (ood_ids() if 2 in IDENT["levels"] else [])
-            for suffix in ("png", "pdf")
+            for i in (ood_ids() if OOD else [])
+            for f in figure_files(f"{kind}_{i}", f"../report/{kind}.rst")
         ],
     log:
-        "logs/figures.log",
+        log_file("figures"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1

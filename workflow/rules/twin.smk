@@ -3,13 +3,13 @@
 
 rule twin_table:
     input:
-        library("twin", "rawdata", "datasets", "parameters"),
+        code("twin_table"),
     output:
         table=f"{RAW}/datapoints.csv",
         layout=f"{RAW}/dataset.yaml",
         truth=f"{RAW}/truth.json",
     log:
-        f"logs/{config['dataset']}/twin_table.log",
+        log_file("twin_table"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
@@ -25,11 +25,11 @@ rule twin_table:
 rule twin_datapoint:
     input:
         rules.twin_table.output,
-        library("twin", "shapes", "capture", "motions", "effectors", "simulation"),
+        code("twin_datapoint"),
     output:
         directory(f"{RAW}/{{id}}"),
     log:
-        f"logs/{config['dataset']}/twin/{{id}}.log",
+        log_file("twin/{id}"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1

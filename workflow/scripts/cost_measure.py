@@ -4,7 +4,7 @@ child process that runs nothing but the measurement (not Snakemake's script mach
 import json
 
 from dpsi.bench import run_isolated
-from dpsi.pointclouds import atomic_output
+from dpsi.files import atomic_output
 from dpsi.provenance import recorded
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]) as log:

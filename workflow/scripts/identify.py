@@ -1,4 +1,5 @@
-"""One identification run (level, loss, dataset, seed), resumable from its state file."""
+"""One identification run (level, loss, dataset, seed; for the analyses also material and start),
+resumable from its state file; its summary carries these labels."""
 
 import sys
 from pathlib import Path
@@ -8,14 +9,17 @@ from dpsi.datapoint import load_datapoint
 from dpsi.parameters import HAND_PICKED
 from dpsi.provenance import recorded
 from dpsi.simulation import Simulator, SimulatorConfig
-from dpsi.twin import read_truth
+from dpsi.twin_plan import load_truth
 
 w, p = snakemake.wildcards, snakemake.params
+labels = dict(level=int(w.level), loss=w.loss, dataset=w.dataset, seed=int(w.seed), start=p.initial,
+              material=w.get("material", "clay"))
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
     training = [load_datapoint(f) for f in snakemake.input.training]
-    truth = read_truth(Path(snakemake.input.truth[0]).parent)[0]["clay"] if snakemake.input.truth else None
+    truth = load_truth(Path(snakemake.input.truth[0]).parent)["materials"]["clay"] if snakemake.input.truth else None
     identification.identify(
         Path(snakemake.output.summary).parent, int(w.level), w.loss, training,
         [load_datapoint(f) for f in snakemake.input.validation], seed=int(w.seed), iterations=p.iterations,
         initial=HAND_PICKED if p.initial == "hand-picked" else None, truth=truth,
-        simulator=Simulator(SimulatorConfig(**p.simulator)), progress=sys.stderr, restart_if_different=True)
+        simulator=Simulator(SimulatorConfig(**p.simulator)), progress=sys.stderr, restart_if_different=True,
+        labels=labels)

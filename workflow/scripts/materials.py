@@ -9,12 +9,12 @@ from dpsi.reporting.runs import load_runs
 
 out, p = snakemake.output, snakemake.params
 with recorded(out, snakemake.input, dict(p), snakemake.log[0]):
-    summaries, logs = load_runs(snakemake.input.summaries, snakemake.input.logs, p.labels)
+    summaries, logs = load_runs(snakemake.input.summaries, snakemake.input.logs)
     twin = Path(snakemake.input.truth[0]).parent
     truths = {m: resolve("truth", twin, material=m).as_dict() for m in p.materials}
     loss, dataset, validation = summaries[0]["loss"], summaries[0]["dataset"], ", ".join(p.validation)
-    tables.write_table(tables.materials_table(summaries, truths), out.table,
+    tables.write_table(tables.materials_table(summaries, truths), out.table[0],
                        f"Recovered level-2 parameters of other materials ({loss}, {dataset}) against the truth; "
                        f"validation height-map distance (mm) on {validation}")
-    figures.plot_runs(logs, 2, out.png, out.pdf, columns="material", truth=truths,
+    figures.plot_runs(logs, 2, *out.figure, columns="material", truth=truths,
                       title=f"Other materials, level 2, {loss} on {dataset}: validation on {validation}")

@@ -9,25 +9,27 @@ import numpy as np
 
 from dpsi.datapoint import load_datapoint
 from dpsi.heightmap import height_map, heightmap_distance_mm
+from dpsi.identification import scene
 from dpsi.parameter_sources import best_run
 from dpsi.parameters import HAND_PICKED, Parameters
-from dpsi.pointclouds import atomic_output
+from dpsi.files import atomic_output
 from dpsi.provenance import recorded
 from dpsi.reporting.frames import frame_steps
+from dpsi.reporting.runs import read_summary
 from dpsi.reporting.tables import HAND_PICKED_LABEL
 from dpsi.simulation import Simulator, SimulatorConfig
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]) as log:
     if snakemake.input.summaries:
-        best = best_run([json.loads(open(f).read()) for f in snakemake.input.summaries])
-        params, loss, dataset = Parameters.checked(**best["parameters"]), snakemake.wildcards.loss, snakemake.wildcards.dataset
+        best = best_run([read_summary(f) for f in snakemake.input.summaries])
+        params, loss, dataset = Parameters.checked(**best["parameters"]), best["loss"], best["dataset"]
     else:
         params, loss, dataset = HAND_PICKED, HAND_PICKED_LABEL, ""
     simulator = Simulator(SimulatorConfig(**snakemake.params.simulator))
     records, finals = [], {}
     for path in snakemake.input.datapoints:
         dp = load_datapoint(path)
-        final = simulator.forward(dp.scene(), params, keep_substeps=False)
+        final = simulator.forward(scene(dp), params, keep_substeps=False)
         distance = heightmap_distance_mm(height_map(final, dp.centre_xy, floor=dp.table_z), dp.heightmap)
         records.append({"motion": dp.motion, "config": dp.id, "loss": loss, "dataset": dataset,
                         "parameters": params.as_dict(), "heightmap_mm": distance})

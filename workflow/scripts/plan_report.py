@@ -7,7 +7,7 @@ from dpsi.reporting.tables import write_table
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
     plan, record = load_plan(snakemake.input.record, snakemake.input.arrays)
-    write_table(planning_table(record), snakemake.output.table,
+    write_table(planning_table(record), snakemake.output.table[0],
                 caption="Greedy plan towards a flattened shape's height map: the distance (mm) after every action.")
-    plot_plan(plan, snakemake.output.figure, snakemake.output.figure_pdf,
+    plot_plan(plan, *snakemake.output.figure,
               title=f"plan from {record['datapoint']} ({record['effector']} effector)")

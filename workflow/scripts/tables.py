@@ -5,13 +5,12 @@ from pathlib import Path
 
 from dpsi.provenance import recorded
 from dpsi.reporting import tables
+from dpsi.reporting.runs import read_summary
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
-    summaries = []
-    for path in map(Path, snakemake.input.summaries):  # .../runs/L<level>/<loss>/<dataset>/seed<seed>/summary.json
-        summaries.append({**json.loads(path.read_text()), "dataset": path.parts[-3]})
-    hand_picked = {int(Path(f).parent.name[1:]): json.loads(Path(f).read_text())["validation"]["heightmap_mm"]
-                   for f in snakemake.input.hand_picked}
+    summaries = [read_summary(path) for path in snakemake.input.summaries]
+    hand_picked = {record["level"]: record["validation"]["heightmap_mm"]
+                   for record in (json.loads(Path(f).read_text()) for f in snakemake.input.hand_picked)}
     ood = [record for f in snakemake.input.ood for record in json.loads(Path(f).read_text())]
     out = Path(snakemake.output[0]).parent
     tables.write_table(tables.motions_table(), out / "motions.csv", "Motions (SPEC §2)")

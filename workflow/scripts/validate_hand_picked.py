@@ -5,7 +5,7 @@ import json
 from dpsi.datapoint import load_datapoint
 from dpsi.identification import validation
 from dpsi.parameters import HAND_PICKED
-from dpsi.pointclouds import atomic_output
+from dpsi.files import atomic_output
 from dpsi.provenance import recorded
 from dpsi.simulation import Simulator, SimulatorConfig
 
@@ -13,4 +13,4 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
     simulator = Simulator(SimulatorConfig(**snakemake.params.simulator))
     metrics, failed = validation(simulator, [load_datapoint(f) for f in snakemake.input.validation], HAND_PICKED)
     with atomic_output(snakemake.output[0]) as tmp:
-        tmp.write_text(json.dumps({"parameters": HAND_PICKED.as_dict(), "validation": metrics, "failed": failed}))
+        tmp.write_text(json.dumps({"level": int(snakemake.wildcards.level), "parameters": HAND_PICKED.as_dict(), "validation": metrics, "failed": failed}))

@@ -13,7 +13,7 @@ import numpy as np
 import open3d as o3d
 import pymeshlab
 
-from dpsi.pointclouds import check_points
+from dpsi.files import check_points
 from dpsi.reconstruction.fusion import voxel_downsample
 from dpsi.reconstruction.meshing import MeshingError, is_watertight, repair
 

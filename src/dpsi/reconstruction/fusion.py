@@ -17,7 +17,8 @@ import numpy as np
 import open3d as o3d
 from scipy import ndimage
 
-from dpsi.pointclouds import View, check_points
+from dpsi.files import check_points
+from dpsi.pointclouds import View
 
 TABLE_SEARCH = 0.008
 """Half-height (m) of the band around the known table height searched for the table plane."""

@@ -12,7 +12,7 @@ import numpy as np
 import open3d as o3d
 import pymeshlab
 
-from dpsi.pointclouds import check_points
+from dpsi.files import check_points
 from dpsi.reconstruction.fusion import voxel_downsample
 
 RADII = (1.5, 2.5, 4.0)

@@ -21,7 +21,7 @@ from matplotlib.lines import Line2D
 from dpsi.heightmap import SIZE, height_map, heightmap_distance_mm
 from dpsi.losses import VALIDATION_METRICS as METRICS
 from dpsi.parameters import IDENTIFIED, LOWER, UPPER
-from dpsi.pointclouds import atomic_output
+from dpsi.files import atomic_output, check_points
 
 if TYPE_CHECKING:  # importing dpsi.datapoint at run time would load the simulator
     from dpsi.datapoint import Datapoint
@@ -144,22 +144,12 @@ def _plot_seeds(ax, by_seed: pd.DataFrame, colour: str) -> None:
             marker=marker, markersize=4)
 
 
-def _checked_points(points, what: str) -> np.ndarray:
-    """``points`` as a finite (n, 3) float array with n ≥ 1, else ``ValueError`` naming ``what``."""
-    points = np.asarray(points, dtype=float)
-    if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
-        raise ValueError(f"{what} must have shape (n, 3) with n ≥ 1, got {points.shape}")
-    if not np.isfinite(points).all():
-        raise ValueError(f"{what} contain NaN or inf")
-    return points
-
-
 def plot_heightmaps(datapoint: Datapoint, final_particles, png_path: str | Path, pdf_path: str | Path,
                     title: str = "") -> None:
     """Real vs simulated height map (mm above the table) and simulated − real (mm), with the
     height-map distance (mm) in the title. ``final_particles`` (n, 3) in m."""
     real = np.asarray(datapoint.heightmap, dtype=float)
-    sim = height_map(_checked_points(final_particles, "final particles"), datapoint.centre_xy,
+    sim = height_map(check_points(final_particles, "final particles"), datapoint.centre_xy,
                      cells=real.shape[0], floor=datapoint.table_z)
     distance = heightmap_distance_mm(sim, real)
     real_mm, sim_mm = ((m - datapoint.table_z) * MM_PER_M for m in (real, sim))
@@ -190,9 +180,9 @@ def plot_particles(datapoint: Datapoint, final_particles, png_path: str | Path, 
                    title: str = "") -> None:
     """Particles before, simulated after and the PRT target, as 3D scatter plots in mm with equal
     axis scales, shared limits and the same view. ``final_particles`` (n, 3) in m."""
-    panels = (("before", _checked_points(datapoint.particles, "datapoint particles")),
-              ("simulated after", _checked_points(final_particles, "final particles")),
-              ("target (PRT)", _checked_points(datapoint.prt_target, "PRT target")))
+    panels = (("before", check_points(datapoint.particles, "datapoint particles")),
+              ("simulated after", check_points(final_particles, "final particles")),
+              ("target (PRT)", check_points(datapoint.prt_target, "PRT target")))
     panels = [(name, points * MM_PER_M) for name, points in panels]
     everything = np.concatenate([points for _, points in panels])
     lo, hi = everything.min(axis=0), everything.max(axis=0)

@@ -1,30 +1,43 @@
-"""Identification runs as the analyses read them: each run's ``summary.json`` and ``log.csv``
-(see :mod:`dpsi.identification`) together with the labels that say which run it is (level, loss,
-dataset, seed and, for the analyses, material and start), given by the workflow rather than parsed
-from paths (an analysis may reuse a run of the main sweep, whose folder has no such labels)."""
+"""Identification runs as the reports read them: each run's ``summary.json`` and ``log.csv`` (see
+:mod:`dpsi.identification`), labelled by the labels its summary carries (level, loss, dataset, seed,
+start, material), never by its path (an analysis may reuse a run of the main sweep)."""
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import pandas as pd
 
+LABELS = ("level", "loss", "dataset", "seed", "start", "material")
+"""What a run's summary says it is."""
 
-def load_runs(summaries: Sequence[str | os.PathLike], logs: Sequence[str | os.PathLike],
-              labels: Sequence[Mapping]) -> tuple[list[dict], pd.DataFrame]:
-    """The run summaries, each updated with its labels, and all log rows in one table with the labels
-    as extra columns; ``summaries``, ``logs`` and ``labels`` are aligned, one entry per run."""
-    if not len(summaries) == len(logs) == len(labels):
-        raise ValueError(f"{len(summaries)} summaries, {len(logs)} logs and {len(labels)} labels: "
-                         "give one of each per run")
-    if not labels:
+
+def read_summary(path: str | os.PathLike) -> dict:
+    """A run summary with its labels as top-level keys; ``ValueError`` naming the file if it has none."""
+    summary = json.loads(Path(path).read_text())
+    labels = summary.get("labels") or {}
+    missing = [k for k in LABELS if k not in labels]
+    if missing:
+        raise ValueError(f"{path}: run summary lacks the label(s) {missing}; it was written by an older "
+                         "version: delete it to rerun the identification")
+    return {**summary, **labels}
+
+
+def load_runs(summaries: Sequence[str | os.PathLike],
+              logs: Sequence[str | os.PathLike]) -> tuple[list[dict], pd.DataFrame]:
+    """The run summaries (labels as keys) and all log rows in one table with the labels as extra columns;
+    ``summaries`` and ``logs`` are aligned, one entry per run."""
+    if len(summaries) != len(logs):
+        raise ValueError(f"{len(summaries)} summaries and {len(logs)} logs: give one of each per run")
+    if not summaries:
         raise ValueError("no runs to load")
-    records = [{**json.loads(Path(s).read_text()), **label} for s, label in zip(summaries, labels)]
-    rows = pd.concat([pd.read_csv(log).assign(**label) for log, label in zip(logs, labels)], ignore_index=True)
+    records = [read_summary(s) for s in summaries]
+    rows = pd.concat([pd.read_csv(log).assign(**{k: r[k] for k in LABELS}) for log, r in zip(logs, records)],
+                     ignore_index=True)
     return records, rows
 
 
-__all__ = ["load_runs"]
+__all__ = ["LABELS", "read_summary", "load_runs"]

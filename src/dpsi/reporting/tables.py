@@ -27,7 +27,7 @@ import pandas as pd
 from ..motions import MOTIONS, plan, resample
 from ..losses import VALIDATION_METRICS
 from ..parameters import HAND_PICKED, IDENTIFIED, LOWER, NAMES, STEP_SIZE, UNITS, UPPER
-from ..pointclouds import atomic_output
+from ..files import atomic_output
 
 HAND_PICKED_LABEL = "hand-picked"
 AVERAGE_LABEL = "average"

@@ -5,15 +5,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..effectors import Effector
+from ..files import check_points
+from ..heightmap import footprint_centre
+from ..motions import DT, Trajectory
 from ..parameters import STIFFEST, Parameters
-
-if TYPE_CHECKING:
-    from ..motions import Trajectory
 
 
 class SimulationError(RuntimeError):
@@ -40,7 +39,7 @@ class SimulatorConfig:
     min_substeps: int = 8
     max_particles: int = 5000
     max_steps: int = 700
-    step_dt: float = 0.01
+    step_dt: float = DT
     arch: str = "cpu"
     substep_memory_mb: float = 1200.0
     serial: bool = True
@@ -82,24 +81,20 @@ class Scene:
     particles: np.ndarray
     particle_volume: float
     effector: Effector
-    trajectory: "Trajectory"
+    trajectory: Trajectory
     start: np.ndarray
     table_z: float = 0.0
 
     def __post_init__(self):
-        self.particles = np.ascontiguousarray(self.particles, dtype=np.float64)
+        self.particles = np.ascontiguousarray(check_points(self.particles, "scene particles"))
         self.start = np.asarray(self.start, dtype=np.float64).reshape(3)
-        if self.particles.ndim != 2 or self.particles.shape[1] != 3 or len(self.particles) == 0:
-            raise ValueError(f"particles must be a non-empty (n, 3) array, got shape {self.particles.shape}")
-        if not np.all(np.isfinite(self.particles)):
-            raise ValueError("particles contain NaN or inf")
         if not self.particle_volume > 0:
             raise ValueError(f"particle_volume must be positive, got {self.particle_volume}")
 
     @property
     def centre_xy(self) -> np.ndarray:
         """Centre of the simulated box: the middle of the particles' footprint (m)."""
-        return 0.5 * (self.particles[:, :2].min(axis=0) + self.particles[:, :2].max(axis=0))
+        return footprint_centre(self.particles)
 
     def tip_poses(self) -> tuple[np.ndarray, np.ndarray]:
         """Per-step tip positions (n_steps + 1, 3) in the base frame and absolute yaw (rad)."""
