@@ -10,6 +10,20 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = [sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile")]
 TINY = ROOT / "tests" / "data" / "tiny.yaml"
+SHARED = ROOT.parent / "shared"
+"""The project's shared folder beside the clone (real clay meshes, measured effectors); CI has it."""
+
+
+def shared(relative: str) -> Path:
+    """``SHARED / relative``; if it is missing the test is skipped, saying why — or fails under CI (the
+    environment variable CI set), where ../shared is always there."""
+    path = SHARED / relative
+    if not path.exists():
+        reason = f"{path} not found: it comes with the project's shared folder beside this clone (../shared)"
+        if os.environ.get("CI"):
+            pytest.fail(reason + "; CI must provide it")
+        pytest.skip(reason)
+    return path
 
 
 def snakemake(workdir, *args, config=TINY):

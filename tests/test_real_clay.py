@@ -7,12 +7,12 @@ enclosed volume; the reference volume is the one under their visible top surface
 camera from above plus the walls-at-≥90° assumption can recover.
 """
 
-from pathlib import Path
 
 import numpy as np
 import open3d as o3d
 import pytest
 
+from conftest import SHARED, shared
 from dpsi.capture import capture
 from dpsi.heightmap import height_map
 from dpsi.pointclouds import read_mesh
@@ -20,13 +20,16 @@ from dpsi.reconstruction.filling import fill
 from dpsi.reconstruction.fusion import fuse
 from dpsi.reconstruction.meshing import is_watertight, mesh_volume, reconstruct_mesh
 
-REAL_CLAY = Path(__file__).resolve().parents[1].parent / "shared" / "real-clay"
+REAL_CLAY = SHARED / "real-clay"
 PAIRS = {  # robot-frame (before, after) pairs, see real-clay/README.md
     "rectangle-8": ("data-motion-1/eef-rectangle/mesh_80.obj", "data-motion-1/eef-rectangle/mesh_81.obj"),
     "cylinder-5": ("data-motion-poking-1/eef-cylinder/mesh_50.obj", "data-motion-poking-1/eef-cylinder/mesh_51.obj"),
 }
 
-pytestmark = pytest.mark.skipif(not REAL_CLAY.is_dir(), reason=f"real clay meshes not found at {REAL_CLAY}")
+@pytest.fixture(autouse=True)
+def real_clay():
+    """Skip (saying why) without ../shared, fail under CI."""
+    return shared("real-clay")
 
 
 def top_surface(mesh, cell=0.001):

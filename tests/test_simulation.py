@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import taichi.lang.kernel_impl as kernel_impl
 
+from conftest import shared
 from dpsi import effectors
 from dpsi.motions import Trajectory, trajectory
 from dpsi.parameters import HAND_PICKED, NAMES, STIFFEST, Parameters
@@ -224,11 +225,7 @@ def test_backward_needs_forward():
 
 def test_mesh_effector_matches_the_parametric_rectangle(sim, tmp_path):
     """The measured rectangle effector mesh, as a signed-distance grid, agrees with the parametric box."""
-    from pathlib import Path
-
-    mesh = Path(__file__).resolve().parents[1].parent / "shared/real-clay/effectors/meshes/raw/RectangleEEF.obj"
-    if not mesh.is_file():
-        pytest.skip(f"the measured effector meshes are not here ({mesh}); they come with ../shared")
+    mesh = shared("real-clay/effectors/meshes/raw/RectangleEEF.obj")
     grid = effectors.effector_from_mesh(mesh, initial_yaw=effectors.RECTANGLE.initial_yaw)
     particles = block()
     box, sampled_box = scene(particles, AWAY, effectors.RECTANGLE), scene(particles, AWAY, grid)
