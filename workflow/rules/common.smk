@@ -39,6 +39,7 @@ def _module_file(name):
     return None
 
 
+@functools.cache
 def _imported(path, dotted):
     """Dotted names of the dpsi modules the file ``path`` (of module ``dotted``) may import, its packages
     included."""
