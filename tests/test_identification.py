@@ -146,6 +146,8 @@ OUT_OF_RANGE = Parameters(E=1e6, nu=0.4, rho=1330.0, yield_stress=1e3, mu_table=
     ({"initial": OUT_OF_RANGE}, "initial value: parameter E=1000000.0"),
     ({"simulator": SimpleNamespace(config=SimulatorConfig(max_particles=100), forward=_failing)},
      "training datapoint 'round' has 245 particles, more than the simulator's max_particles=100"),
+    ({"simulator": SimpleNamespace(config=dataclasses.replace(CONFIG, step_dt=0.005), forward=_failing)},
+     "training datapoint 'round' has trajectory steps of 0.01 s, the simulator 0.005 s"),
 ])
 def test_bad_arguments_fail_before_any_simulation(problem, tmp_path, change, message):
     untouchable = SimpleNamespace(config=CONFIG, forward=_failing, backward=_failing)

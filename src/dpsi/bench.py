@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .progress import Progress
+
 BENCH_MOTIONS = {"poking-1": "round", "poking-shifting-1": "round", "flattening": "cylinder"}
 """Motions of the cost study (SPEC §7.6) and the effector each is run with."""
 
@@ -165,7 +167,12 @@ def main(argv=None) -> None:
         config = SimulatorConfig(**json.loads(args.simulator))
         print(json.dumps(measure_simulation(args.motion, args.density, args.iterations, config)))
     elif args.what == "simulator":
-        records = [run_isolated(m, args.density) for m in args.motions]
+        records = []
+        with Progress(len(args.motions), "benchmark") as bar:
+            for k, motion in enumerate(args.motions, 1):
+                records.append(run_isolated(motion, args.density))
+                bar.update(k, f"{motion}: forward {records[-1]['forward_s']:.2f} s, "
+                              f"backward {records[-1]['backward_s']:.2f} s")
         if args.json:
             print(json.dumps(records))
         else:

@@ -139,13 +139,17 @@ def check_run(level: int, loss: str, training: Sequence[Datapoint], validation_s
 
 
 def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_targets: Sequence[str]) -> None:
-    """Raise naming ``dp`` if the simulator cannot hold it or one of its ``emd_targets`` (fields measured
+    """Raise naming ``dp`` if the simulator cannot hold it, steps at another length than the simulator, or
+    one of its ``emd_targets`` (fields measured
     by an earth mover's distance) is empty or has more points than the particles."""
     where = f"{dataset} datapoint {dp.id!r}"
     n = len(dp.particles)
     if n > config.max_particles:
         raise IdentificationError(f"{where} has {n} particles, more than the simulator's max_particles="
                                   f"{config.max_particles}")
+    if not math.isclose(dp.trajectory.dt, config.step_dt):
+        raise IdentificationError(f"{where} has trajectory steps of {dp.trajectory.dt} s, the simulator "
+                                  f"{config.step_dt} s; resample the trajectory to the simulator's step")
     if dp.trajectory.n_steps > config.max_steps:
         raise IdentificationError(f"{where} has {dp.trajectory.n_steps} steps, more than the simulator's "
                                   f"max_steps={config.max_steps}")

@@ -32,6 +32,7 @@ from dpsi.heightmap import footprint_centre, height_map, heightmap_distance_mm
 from dpsi.losses import HeightMapTarget
 from dpsi.motions import Trajectory, trajectory
 from dpsi.parameters import Parameters
+from dpsi.progress import Progress
 from dpsi.files import atomic_output
 from dpsi.simulation import Scene, SimulationError, Simulator
 
@@ -162,21 +163,23 @@ class Planner:
 
     def step(self, particles: np.ndarray, target: HeightMapTarget, number: int = 1) -> Step:
         """Try every candidate from ``particles`` and return the one closest to ``target`` (ties go to
-        the earlier candidate, so the empty action wins them). ``number`` only labels log messages."""
+        the earlier candidate, so the empty action wins them). ``number`` only labels the progress lines
+        (on stderr)."""
         best, skipped = None, []
         options = candidates(particles, self.actions)
-        for action in options:
-            try:
-                after = self.outcome(particles, action)
-            except SimulationError as err:
-                skipped.append((action, str(err)))
-                log.info("action %d: %s skipped: %s", number, _describe(action), err)
-                continue
-            heights = heightmap_of(after, target)
-            distance = heightmap_distance_mm(heights, target.heights)
-            log.info("action %d: %s → %.1f mm", number, _describe(action), distance)
-            if best is None or distance < best.distance_mm:
-                best = Step(action, after, heights, distance, len(options))
+        with Progress(len(options), f"plan action {number}") as bar:
+            for k, action in enumerate(options, 1):
+                try:
+                    after = self.outcome(particles, action)
+                except SimulationError as err:
+                    skipped.append((action, str(err)))
+                    bar.update(k, f"{_describe(action)} skipped: {err}")
+                    continue
+                heights = heightmap_of(after, target)
+                distance = heightmap_distance_mm(heights, target.heights)
+                bar.update(k, f"{_describe(action)} → {distance:.1f} mm")
+                if best is None or distance < best.distance_mm:
+                    best = Step(action, after, heights, distance, len(options))
         best.skipped = skipped
         return best
 

@@ -19,6 +19,7 @@ the reconstruction at the matching stage (fusion, meshing, or filling).
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import re
 from collections.abc import Sequence
@@ -295,6 +296,41 @@ def load_raw_dataset(root: str | os.PathLike, only: Sequence[str] | None = None)
     return RawDataset(root, table_z, workspace, effectors, tuple(datapoints))
 
 
+def write_checked(path: str | os.PathLike, dataset: RawDataset, datapoint_id: str) -> None:
+    """Record (JSON, atomically) one datapoint of a validated ``dataset`` with what its stages need (its
+    state sources, trajectory, effector, table height and workspace), so that they read its files without
+    validating them again."""
+    dp = dataset.datapoint(datapoint_id)
+    source = lambda s: {"form": s.form, "paths": [[str(p) for p in item] if isinstance(item, tuple) else str(item)
+                                                   for item in s.paths]}  # noqa: E731
+    effector = dataset.effectors[dp.effector]
+    record = {"root": str(dataset.root), "table_z": dataset.table_z,
+              "workspace": None if dataset.workspace is None else [w.tolist() for w in dataset.workspace],
+              "effector": {"name": effector.name, "kind": effector.kind,
+                           "obj": None if effector.obj is None else str(effector.obj)},
+              "datapoint": {**{k: getattr(dp, k) for k in ("id", "motion", "effector", "level", "role", "material")},
+                            "trajectory": str(dp.trajectory), "before": source(dp.before), "after": source(dp.after)}}
+    with atomic_output(path) as tmp:
+        tmp.write_text(json.dumps(record, indent=1))
+
+
+def read_checked(path: str | os.PathLike) -> RawDataset:
+    """The one-datapoint dataset recorded by :func:`write_checked` (its files not read again)."""
+    try:
+        record = json.loads(Path(path).read_text())
+        source = lambda s: StateSource(s["form"], tuple(tuple(map(Path, p)) if isinstance(p, list) else Path(p)  # noqa: E731
+                                                        for p in s["paths"]))
+        d, e = record["datapoint"], record["effector"]
+        datapoint = RawDatapoint(d["id"], d["motion"], d["effector"], int(d["level"]), d["role"], d["material"],
+                                 Path(d["trajectory"]), source(d["before"]), source(d["after"]))
+        effector = EffectorSpec(e["name"], e["kind"], None if e["obj"] is None else Path(e["obj"]))
+        workspace = None if record["workspace"] is None else tuple(np.asarray(w, float) for w in record["workspace"])
+        return RawDataset(Path(record["root"]), float(record["table_z"]), workspace, {effector.name: effector},
+                          (datapoint,))
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise RawDataError(f"{path}: not a checked datapoint record ({e}); rerun the check_raw stage") from None
+
+
 def write_views(folder: str | os.PathLike, views: list[View], suffix: str = ".ply",
                 transform_suffix: str = ".txt") -> None:
     """Write camera ``views`` as ``view_<k><suffix>`` plus ``view_<k>.transform<transform_suffix>`` into
@@ -328,4 +364,4 @@ def write_datapoints_table(path: str | os.PathLike, rows: list[dict]) -> None:
 
 
 __all__ = ["read_dataset_config", "trajectory_file", "STATES", "EFFECTOR_KINDS", "RawDataError", "StateSource", "EffectorSpec",
-           "RawDatapoint", "RawDataset", "load_raw_dataset", "write_views", "write_datapoints_table"]
+           "RawDatapoint", "RawDataset", "load_raw_dataset", "write_checked", "read_checked", "write_views", "write_datapoints_table"]

@@ -40,6 +40,7 @@ from dpsi.motions import get_motion, plan, resample, write_waypoints
 from dpsi.parameters import Parameters
 from dpsi.files import atomic_output, load_arrays, save_arrays
 from dpsi.prepare import surface_points
+from dpsi.progress import Progress
 from dpsi.rawdata import write_datapoints_table, write_views
 from dpsi.reconstruction.filling import fill, lattice_spacing, particles_to_mesh
 from dpsi.shapes import random_lump
@@ -210,7 +211,12 @@ def generate_twin(root: str | os.PathLike, plan: Plan | None = None, seed: int =
     """The whole twin in one process: :func:`write_twin_table`, then :func:`generate_datapoint` for each
     row. Returns the datapoint folders."""
     rows = write_twin_table(root, plan, seed, materials, config, density)
-    return [generate_datapoint(root, r["id"]) for r in rows]
+    folders = []
+    with Progress(len(rows), "twin") as bar:
+        for k, row in enumerate(rows, 1):
+            folders.append(generate_datapoint(root, row["id"]))
+            bar.update(k, row["id"])
+    return folders
 
 
 __all__ = ["CENTRE", "CENTRE_JITTER", "TABLE_Z", "WORKSPACE", "FINE_CONFIG", "FINE_DENSITY",

@@ -1,10 +1,29 @@
-"""Real-to-sim reconstruction (SPEC §3), one rule per stage."""
+"""Real-to-sim reconstruction (SPEC §3), one rule per stage. `check_raw` validates a raw datapoint once;
+the stages read its record instead of validating the raw files again."""
+
+
+rule check_raw:
+    input:
+        raw_datapoint,
+        code("check_raw"),
+    output:
+        f"{RESULTS}/checked/{{id}}.json",
+    log:
+        log_file("check_raw/{id}"),
+    conda:
+        "../envs/dpsi.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    script:
+        "../scripts/check_raw.py"
 
 
 rule fuse:
     input:
-        raw_datapoint,
-        code("fuse"),
+        checked=f"{RESULTS}/checked/{{id}}.json",
+        code=code("fuse"),
     output:
         f"{RESULTS}/fused/{{id}}_{{state}}.npy",
     log:
@@ -21,7 +40,7 @@ rule fuse:
 
 rule mesh:
     input:
-        raw_datapoint,
+        checked=f"{RESULTS}/checked/{{id}}.json",
         points=f"{RESULTS}/fused/{{id}}_{{state}}.npy",
         code=code("mesh"),
     output:
@@ -63,7 +82,7 @@ rule targets:
         mesh=f"{RESULTS}/meshes/{{id}}_after.obj",
         points=f"{RESULTS}/fused/{{id}}_after.npy",
         particles=f"{RESULTS}/particles/{{id}}.npy",
-        raw=raw_config_files(),
+        checked=f"{RESULTS}/checked/{{id}}.json",
         code=code("targets"),
     output:
         f"{RESULTS}/targets/{{id}}.npz",
@@ -77,15 +96,14 @@ rule targets:
         runtime=5,
     params:
         density=config["reconstruction"]["density"],
-        raw=RAW,
     script:
         "../scripts/targets.py"
 
 
 rule trajectory:
     input:
-        raw_datapoint,
-        code("trajectory"),
+        checked=f"{RESULTS}/checked/{{id}}.json",
+        code=code("trajectory"),
     output:
         f"{RESULTS}/trajectories/{{id}}.npz",
     log:
@@ -96,9 +114,6 @@ rule trajectory:
     resources:
         mem_mb=500,
         runtime=2,
-    params:
-        raw=RAW,
-        row=lambda wildcards: TABLE.set_index("id").loc[wildcards.id].to_dict(),
     script:
         "../scripts/trajectory.py"
 
@@ -108,7 +123,7 @@ rule prepare:
         particles=f"{RESULTS}/particles/{{id}}.npy",
         targets=f"{RESULTS}/targets/{{id}}.npz",
         trajectory=f"{RESULTS}/trajectories/{{id}}.npz",
-        raw=raw_config_files(),
+        checked=f"{RESULTS}/checked/{{id}}.json",
         code=code("prepare"),
     output:
         f"{RESULTS}/prepared/{{id}}.npz",
@@ -122,7 +137,5 @@ rule prepare:
         runtime=2,
     params:
         density=config["reconstruction"]["density"],
-        row=lambda wildcards: TABLE.set_index("id").loc[wildcards.id].to_dict(),
-        raw=RAW,
     script:
         "../scripts/prepare.py"

@@ -3,10 +3,10 @@
 from dpsi import prepare
 from dpsi.pointclouds import read_mesh, read_points
 from dpsi.provenance import recorded
-from dpsi.rawdata import read_dataset_config
+from dpsi.rawdata import read_checked
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
-    table_z = read_dataset_config(snakemake.params.raw)[0]
+    table_z = read_checked(snakemake.input.checked).table_z
     targets = prepare.after_targets(read_mesh(snakemake.input.mesh), read_points(snakemake.input.points),
                                     read_points(snakemake.input.particles), snakemake.params.density, table_z)
     prepare.save_targets(snakemake.output[0], targets)

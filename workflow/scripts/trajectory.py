@@ -2,9 +2,9 @@
 
 from dpsi import prepare
 from dpsi.provenance import recorded
-from dpsi.rawdata import trajectory_file
+from dpsi.rawdata import read_checked
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
-    path = trajectory_file(snakemake.params.raw, snakemake.wildcards.id, snakemake.params.row["motion"])
-    trajectory, start = prepare.trajectory_and_start(path)
+    datapoint = read_checked(snakemake.input.checked).datapoints[0]
+    trajectory, start = prepare.trajectory_and_start(datapoint.trajectory)
     prepare.save_trajectory(snakemake.output[0], trajectory, start)
