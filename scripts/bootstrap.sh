@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs everything the project needs on a fresh Debian machine with Python 3.11:
+# Installs everything the project needs on a fresh Debian machine with Python 3.11 or 3.12:
 # the one system library open3d links against, a virtual environment in .venv,
 # and the dpsi package with its test extras. Safe to run again.
 set -euo pipefail
