@@ -5,10 +5,10 @@ import pytest
 
 from dpsi.datapoint import Datapoint
 from dpsi.effectors import ROUND
-from dpsi.heightmap import height_map
+from dpsi.heightmap import height_map, heightmap_distance_mm
 from dpsi.identification import COLUMNS
 from dpsi.motions import Trajectory
-from dpsi.parameters import LOWER, NAMES, UPPER
+from dpsi.parameters import IDENTIFIED, LOWER, NAMES, UPPER
 from dpsi.reporting.figures import plot_heightmaps, plot_particles, plot_runs
 
 
@@ -61,8 +61,19 @@ def assert_figure(tmp_path, name, min_pixels=400):
 
 @pytest.mark.parametrize("level", [1, 2])
 def test_plot_runs_writes_png_and_pdf(tmp_path, level):
-    plot_runs(synthetic_runs(), level, tmp_path / "runs.png", tmp_path / "runs.pdf")
+    runs = synthetic_runs()
+    fig = plot_runs(runs, level, tmp_path / "runs.png", tmp_path / "runs.pdf")
     assert_figure(tmp_path, "runs")
+    # top-left panel: first dataset, validation PCD Chamfer; per loss two seed lines then the mean line
+    ax = fig.axes[0]
+    assert ax.get_title() == "12-mix"
+    one = runs[(runs.level == level) & (runs.dataset == "12-mix") & (runs.loss == "prt_emd")]
+    by_seed = one.pivot_table(index="iteration", columns="seed", values="val_pcd_cd")
+    seed0, seed1, mean = ax.lines[:3]
+    np.testing.assert_allclose(seed1.get_ydata(), by_seed[1])
+    np.testing.assert_allclose(mean.get_ydata(), by_seed.mean(axis=1))
+    assert mean.get_color() == "C0" and ax.lines[3].get_color() == "C1"  # the second loss
+    assert len(fig.axes) == 2 * (5 + len(IDENTIFIED[level]))  # 2 datasets × (metrics + parameters)
 
 
 def test_plot_runs_single_iteration_and_dataset(tmp_path):
@@ -90,14 +101,29 @@ def test_plot_runs_rejects_bad_tables(tmp_path):
 
 
 def test_plot_heightmaps_writes_png_and_pdf(tmp_path, datapoint):
-    plot_heightmaps(datapoint, datapoint.particles, tmp_path / "hm.png", tmp_path / "hm.pdf", title="synthetic")
+    fig = plot_heightmaps(datapoint, datapoint.particles, tmp_path / "hm.png", tmp_path / "hm.pdf",
+                          title="synthetic")
     assert_figure(tmp_path, "hm")
+    sim = height_map(datapoint.particles, datapoint.centre_xy, floor=datapoint.table_z)
+    real_mm, sim_mm = ((m - datapoint.table_z) * 1000 for m in (datapoint.heightmap, sim))
+    shown = [ax.images[0].get_array() for ax in fig.axes[:3]]
+    np.testing.assert_allclose(shown[0], real_mm.T)
+    np.testing.assert_allclose(shown[1], sim_mm.T)
+    np.testing.assert_allclose(shown[2], (sim_mm - real_mm).T)
+    distance = heightmap_distance_mm(sim, datapoint.heightmap)
+    assert distance > 1.0
+    assert fig.get_suptitle() == f"synthetic\nheight-map distance {distance:.1f} mm"
 
 
 def test_plot_particles_writes_png_and_pdf(tmp_path, datapoint):
     final = datapoint.prt_target + np.array([0.0, 0.002, 0.0])
-    plot_particles(datapoint, final, tmp_path / "prt.png", tmp_path / "prt.pdf", title="synthetic")
+    fig = plot_particles(datapoint, final, tmp_path / "prt.png", tmp_path / "prt.pdf", title="synthetic")
     assert_figure(tmp_path, "prt")
+    for ax, (name, points) in zip(fig.axes, (("before", datapoint.particles), ("simulated after", final),
+                                             ("target (PRT)", datapoint.prt_target))):
+        assert ax.get_title() == f"{name} (n = {len(points)})"
+        np.testing.assert_allclose(np.column_stack(ax.collections[0]._offsets3d), points * 1000)
+        assert ax.get_zlim()[0] < points[:, 2].min() * 1000 and ax.get_zlim()[1] > points[:, 2].max() * 1000
 
 
 @pytest.mark.parametrize("plot", [plot_heightmaps, plot_particles])

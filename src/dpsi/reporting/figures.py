@@ -84,8 +84,9 @@ def _check_runs(runs: pd.DataFrame, level: int, keys: tuple[str, ...]) -> pd.Dat
 
 def plot_runs(runs: pd.DataFrame, level: int, png_path: str | Path, pdf_path: str | Path, columns: str = "dataset",
               colours: str = "loss", title: str | None = None,
-              truth: Mapping[str, Mapping[str, float]] | None = None) -> None:
-    """Validation metrics (mm) and identified parameters of ``level`` over the iterations.
+              truth: Mapping[str, Mapping[str, float]] | None = None) -> Figure:
+    """Validation metrics (mm) and identified parameters of ``level`` over the iterations; returns the
+    saved figure.
 
     ``runs`` holds the identification log columns plus level, seed and the keys ``columns`` and
     ``colours``. One figure column per value of ``columns`` (default the dataset); one row per validation
@@ -132,6 +133,7 @@ def plot_runs(runs: pd.DataFrame, level: int, png_path: str | Path, pdf_path: st
     fig.suptitle(textwrap.fill(title or f"Level {level}: validation metrics and identified parameters",
                                width=int(TITLE_CHARS_PER_INCH * fig.get_figwidth())))
     save(fig, png_path, pdf_path)
+    return fig
 
 
 def _plot_seeds(ax, by_seed: pd.DataFrame, colour: str) -> None:
@@ -145,9 +147,9 @@ def _plot_seeds(ax, by_seed: pd.DataFrame, colour: str) -> None:
 
 
 def plot_heightmaps(datapoint: Datapoint, final_particles, png_path: str | Path, pdf_path: str | Path,
-                    title: str = "") -> None:
+                    title: str = "") -> Figure:
     """Real vs simulated height map (mm above the table) and simulated − real (mm), with the
-    height-map distance (mm) in the title. ``final_particles`` (n, 3) in m."""
+    height-map distance (mm) in the title. ``final_particles`` (n, 3) in m. Returns the saved figure."""
     real = np.asarray(datapoint.heightmap, dtype=float)
     sim = height_map(check_points(final_particles, "final particles"), datapoint.centre_xy,
                      cells=real.shape[0], floor=datapoint.table_z)
@@ -174,12 +176,14 @@ def plot_heightmaps(datapoint: Datapoint, final_particles, png_path: str | Path,
     detail = f"height-map distance {distance:.1f} mm"
     fig.suptitle(f"{title}\n{detail}" if title else detail)
     save(fig, png_path, pdf_path)
+    return fig
 
 
 def plot_particles(datapoint: Datapoint, final_particles, png_path: str | Path, pdf_path: str | Path,
-                   title: str = "") -> None:
+                   title: str = "") -> Figure:
     """Particles before, simulated after and the PRT target, as 3D scatter plots in mm with equal
-    axis scales, shared limits and the same view. ``final_particles`` (n, 3) in m."""
+    axis scales, shared limits and the same view. ``final_particles`` (n, 3) in m. Returns the saved
+    figure."""
     panels = (("before", check_points(datapoint.particles, "datapoint particles")),
               ("simulated after", check_points(final_particles, "final particles")),
               ("target (PRT)", check_points(datapoint.prt_target, "PRT target")))
@@ -204,6 +208,7 @@ def plot_particles(datapoint: Datapoint, final_particles, png_path: str | Path, 
         ax.set_title(f"{name} (n = {len(points)})", y=0.93)
     fig.suptitle(title)
     save(fig, png_path, pdf_path)
+    return fig
 
 
 __all__ = ["DPI", "METRIC_LABELS", "PARAMETER_AXES", "new_figure", "save", "plot_runs", "plot_heightmaps",
