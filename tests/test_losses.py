@@ -6,7 +6,7 @@ from scipy.spatial.distance import cdist
 
 from dpsi.heightmap import height_map, height_map_owners
 from dpsi.losses import (
-    LOSSES, HeightMapTarget, Targets, bench_emd, chamfer, earth_movers, heightmap_loss, loss_by_name,
+    LOSSES, HeightMapTarget, Targets, bench_emd, bench_sets, chamfer, earth_movers, heightmap_loss, loss_by_name,
     neg_heightmap_loss, validation_metrics,
 )
 
@@ -166,6 +166,15 @@ def test_validation_metrics():
     assert metrics["pcd_cd"] > 0  # the 20 particles not in the PCD target are away from it
 
 
-def test_bench_emd_runs():
+def test_benchmark_sets_and_their_distances():
+    """The benchmarked sets are a 6 cm cube and its 3 mm jitter; on them the optimal assignment costs
+    no more than the jitter itself (the identity assignment), and each Chamfer term no more than it."""
+    sim, target = bench_sets(n=200)
+    assert sim.min() >= 0.0 and sim.max() <= 0.06
+    assert np.std(target - sim) == pytest.approx(0.003, rel=0.1)
+    jitter_mm = 1000.0 * np.linalg.norm(target - sim, axis=1).sum()
+    emd = earth_movers(sim, target)[0]
+    assert 0.5 * jitter_mm < emd <= jitter_mm + 1e-9
+    assert 0 < chamfer(sim, target)[0] <= 2 * emd
     result = bench_emd(n=50)
     assert result["n"] == 50 and result["emd_s"] > 0 and result["chamfer_s"] > 0

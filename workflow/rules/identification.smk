@@ -2,7 +2,7 @@
 
 The analyses that are variations of identification runs (materials, minima, heightmap_losses) declare
 their runs with `analysis_runs` and get them from `identify_analysis`, the same job as `identify`
-with the material and the initial values as wildcards, under results/<dataset>/<analysis>/.
+with the material and the initial values as wildcards, under <output root>/<dataset>/<analysis>/.
 """
 
 
