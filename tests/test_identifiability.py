@@ -53,19 +53,19 @@ def test_rung_0_recovers_young_modulus_and_yield_stress_from_50_percent_off(rung
     assert summary["relative_error"]["yield_stress"] < 0.10
 
 
-def fake_run(level, loss, seed, estimate, loss_at_best):
-    summary = {"best": {"iteration": 2, "parameters": estimate, "validation": {"heightmap_mm": 100.0 + seed}}}
-    log = pd.DataFrame({"iteration": [0, 1, 2], "train_loss_mm": [900.0, 500.0, loss_at_best]})
-    return dict(rung="R0", level=level, loss=loss, dataset="1-round", seed=seed), summary, log
+def fake_run(seed, estimate, loss_at_best):
+    labels = dict(rung="R0", level=1, loss="prt_emd", dataset="1-round", seed=seed)
+    summary = {**labels, "best": {"iteration": 2, "parameters": estimate, "validation": {"heightmap_mm": 100.0}}}
+    log = pd.DataFrame({"iteration": [0, 1, 2], "train_loss_mm": [900.0, 500.0, loss_at_best]}).assign(**labels)
+    return summary, log
 
 
 def test_ladder_table_has_a_row_per_identified_parameter_with_relative_errors():
     truth = TRUTH.as_dict()
     ref = {"truth": truth, "loss_at_truth_mm": {"prt_emd": 0.0}, "val_heightmap_hand_picked_mm": 300.0,
            "val_heightmap_no_motion_mm": 900.0}
-    runs = [(*fake_run(1, "prt_emd", s, {**truth, "E": truth["E"] * (1 + 0.1 * (s + 1))}, 40.0 + s), ref)
-            for s in (1, 0)]
-    table = ladder_table(runs)
+    runs = [fake_run(s, {**truth, "E": truth["E"] * (1 + 0.1 * (s + 1))}, 40.0 + s) for s in (1, 0)]
+    table = ladder_table([s for s, _ in runs], pd.concat([log for _, log in runs]), {("R0", 1, "1-round"): ref})
     assert list(table.columns) == list(COLUMNS) and len(table) == 2 * len(IDENTIFIED[1])
     assert list(table.seed) == [0] * 4 + [1] * 4
     e = table[table.parameter == "E"].set_index("seed")

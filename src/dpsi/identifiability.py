@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -65,15 +65,16 @@ def same_model_datapoint(dp: Datapoint, simulator: Simulator, truth: Parameters)
 
 
 def reconstructed_twin_datapoint(root: str | os.PathLike, datapoint_id: str, plan, seed: int,
-                                 config: SimulatorConfig, density: float) -> Datapoint:
+                                 config: SimulatorConfig, density: float,
+                                 materials: Mapping[str, Parameters]) -> Datapoint:
     """R1: the twin datapoint ``datapoint_id`` of ``plan`` (same lump and trajectory as the main twin with
-    ``seed``) simulated with the identification's ``config`` and ``density`` (particles/m³) under ``root``,
-    then reconstructed from its camera views and prepared at ``density``."""
+    ``seed`` and ground truth ``materials``) simulated with the identification's ``config`` and ``density``
+    (particles/m³) under ``root``, then reconstructed from its camera views and prepared at ``density``."""
     from dpsi.prepare import prepare_datapoint  # open3d and pymeshlab: only this rung needs them
     from dpsi.rawdata import load_raw_dataset
     from dpsi.twin import generate_datapoint, write_twin_table
 
-    write_twin_table(root, plan, seed, config=config, density=density)
+    write_twin_table(root, plan, seed, dict(materials), config, density)
     generate_datapoint(root, datapoint_id)
     return prepare_datapoint(load_raw_dataset(root, only=[datapoint_id]), datapoint_id, density)
 
@@ -104,14 +105,14 @@ def reference(simulator: Simulator, training: Sequence[Datapoint], validation: S
             "val_heightmap_no_motion_mm": no_motion}
 
 
-def run_rows(labels: dict, summary: dict, log: pd.DataFrame, ref: dict) -> list[dict]:
-    """Ladder-table rows of one run: its ``labels`` (rung, level, loss, dataset, seed), its ``summary``
-    (:func:`dpsi.identification.summarise`), its ``log`` (for the training loss at the best row) and the
-    ``ref`` of its (rung, level, datapoints) from :func:`reference`."""
-    level, loss, best = int(labels["level"]), labels["loss"], summary["best"]
+def run_rows(summary: dict, log: pd.DataFrame, ref: dict) -> list[dict]:
+    """Ladder-table rows of one run: its ``summary`` (:func:`dpsi.identification.summarise` with the labels
+    rung, level, loss, dataset and seed), its ``log`` rows (for the training loss at the best row) and the
+    ``ref`` of its (rung, level, dataset) from :func:`reference`."""
+    level, loss, best = int(summary["level"]), summary["loss"], summary["best"]
     at_best = log.loc[log["iteration"] == best["iteration"], "train_loss_mm"] if best else []
-    common = {"rung": check_rung(labels["rung"]), "level": level, "loss": loss, "dataset": labels["dataset"],
-              "seed": int(labels["seed"]), "loss_at_truth_mm": ref["loss_at_truth_mm"].get(loss, math.nan),
+    common = {"rung": check_rung(summary["rung"]), "level": level, "loss": loss, "dataset": summary["dataset"],
+              "seed": int(summary["seed"]), "loss_at_truth_mm": ref["loss_at_truth_mm"].get(loss, math.nan),
               "loss_at_estimate_mm": float(at_best.iloc[0]) if len(at_best) else math.nan,
               "val_heightmap_mm": best["validation"]["heightmap_mm"] if best else math.nan,
               "val_heightmap_hand_picked_mm": ref["val_heightmap_hand_picked_mm"],
@@ -124,12 +125,20 @@ def run_rows(labels: dict, summary: dict, log: pd.DataFrame, ref: dict) -> list[
     return rows
 
 
-def ladder_table(runs: Sequence[tuple[dict, dict, pd.DataFrame, dict]]) -> pd.DataFrame:
-    """The ladder table (:data:`COLUMNS`) of ``runs``, each (labels, summary, log, reference) as
-    :func:`run_rows` takes them, sorted by rung, level, loss, dataset and seed."""
-    rows = [row for labels, summary, log, ref in runs for row in run_rows(labels, summary, log, ref)]
+RUN_LABELS = ("rung", "level", "loss", "dataset", "seed")
+
+
+def ladder_table(summaries: Sequence[dict], logs: pd.DataFrame, references: Mapping[tuple, dict]) -> pd.DataFrame:
+    """The ladder table (:data:`COLUMNS`): the rows of every run, sorted by rung, level, loss, dataset and
+    seed. ``summaries`` carry the :data:`RUN_LABELS`, ``logs`` holds every run's log rows with the labels as
+    columns, ``references`` maps (rung, level, dataset) to :func:`reference`'s result."""
+    rows = []
+    for summary in summaries:
+        mine = np.logical_and.reduce([logs[k] == summary[k] for k in RUN_LABELS])
+        ref = references[(summary["rung"], int(summary["level"]), summary["dataset"])]
+        rows += run_rows(summary, logs[mine], ref)
     table = pd.DataFrame(rows, columns=list(COLUMNS))
-    return table.sort_values(["rung", "level", "loss", "dataset", "seed"], kind="stable").reset_index(drop=True)
+    return table.sort_values(list(RUN_LABELS), kind="stable").reset_index(drop=True)
 
 
 def recovery_summary(table: pd.DataFrame) -> pd.DataFrame:
@@ -139,4 +148,4 @@ def recovery_summary(table: pd.DataFrame) -> pd.DataFrame:
 
 
 __all__ = ["RUNGS", "LADDER_LOSSES", "COLUMNS", "check_rung", "same_model_datapoint", "reconstructed_twin_datapoint",
-           "level_truth", "reference", "run_rows", "ladder_table", "recovery_summary"]
+           "level_truth", "reference", "run_rows", "RUN_LABELS", "ladder_table", "recovery_summary"]
