@@ -4,6 +4,7 @@ git commit), written beside it as ``<output>.provenance.json``."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import importlib.metadata
 import json
@@ -27,6 +28,18 @@ def checksum(path: str | Path) -> str:
         with open(file, "rb") as f:
             for block in iter(lambda: f.read(1 << 20), b""):
                 digest.update(block)
+    return digest.hexdigest()
+
+
+@functools.cache
+def library_checksum() -> str:
+    """SHA-256 of the names and contents of the dpsi package's source files (``*.py``): the version of
+    the library's code, which changes with any edit (computed once per process)."""
+    package = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for file in sorted(package.rglob("*.py")):
+        digest.update(str(file.relative_to(package)).encode())
+        digest.update(file.read_bytes())
     return digest.hexdigest()
 
 
