@@ -41,6 +41,52 @@ def test_dataset_the_datapoints_cannot_form_fails_at_start_up(tmp_path):
     assert "poking-2 with cylinder" in run.stdout + run.stderr
 
 
+def _raw_project(tmp_path, train_id="train-0", motion="poking-2"):
+    """A project folder (tmp_path/project) whose config reads the raw dataset `probe` with a train and a
+    validation datapoint of level 1."""
+    project = tmp_path / "project"
+    raw = project / "raw" / "probe"
+    raw.mkdir(parents=True)
+    rows = [dict(id=train_id, motion=motion, effector="round", level=1, role="train", material="clay"),
+            dict(id="validation-0", motion="poking-2", effector="round", level=1, role="validation", material="clay")]
+    pd.DataFrame(rows).to_csv(raw / "datapoints.csv", index=False)
+    config = yaml.safe_load(TINY.read_text())
+    del config["twin"], config["analyses"]
+    config["dataset"] = "probe"
+    config["identification"].update(levels=[1], datasets=["1-round"])
+    path = project / "probe.yaml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return project, path
+
+
+def _files(folder):
+    return {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def test_datapoint_id_with_a_path_is_refused_before_any_file_is_opened(tmp_path):
+    """An id climbing out of the project would make Snakemake open (truncate) a log file outside it."""
+    victim = tmp_path / "victim" / "important.log"
+    victim.parent.mkdir()
+    victim.write_text("precious\n")
+    project, config = _raw_project(tmp_path, train_id="../../../../victim/important")
+    outside = {p: b for p, b in _files(tmp_path).items() if project not in p.parents}
+    run = snakemake(project, "-j1", "-k", "--until", "trajectory", "--", "tables", config=config)
+    assert run.returncode != 0
+    output = run.stdout + run.stderr
+    assert "datapoints.csv: line 2: id '../../../../victim/important' must be letters, digits" in output
+    assert "no path separators" in output
+    assert victim.read_text() == "precious\n"
+    assert {p: b for p, b in _files(tmp_path).items() if project not in p.parents} == outside
+
+
+def test_unknown_motion_in_the_table_is_named_at_start_up(tmp_path):
+    project, config = _raw_project(tmp_path, motion="poking-9")
+    run = snakemake(project, "-n", "tables", config=config)
+    assert run.returncode != 0
+    output = run.stdout + run.stderr
+    assert "datapoints.csv: line 2: unknown motion 'poking-9'" in output and "lacks train datapoints" not in output
+
+
 def test_lint_has_no_findings(tmp_path):
     run = snakemake(tmp_path, "--lint")
     assert run.returncode == 0, run.stdout + run.stderr
