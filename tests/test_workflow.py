@@ -42,14 +42,15 @@ def test_dataset_the_datapoints_cannot_form_fails_at_start_up(tmp_path):
 
 
 def _raw_project(tmp_path, train_id="train-0", motion="poking-2"):
-    """A project folder (tmp_path/project) whose config reads the raw dataset `probe` with a train and a
-    validation datapoint of level 1."""
-    project = tmp_path / "project"
+    """A project folder (tmp_path/outer/project) whose config reads the raw dataset `probe` with a train
+    and a validation datapoint of level 1."""
+    project = tmp_path / "outer" / "project"
     raw = project / "raw" / "probe"
     raw.mkdir(parents=True)
     rows = [dict(id=train_id, motion=motion, effector="round", level=1, role="train", material="clay"),
             dict(id="validation-0", motion="poking-2", effector="round", level=1, role="validation", material="clay")]
     pd.DataFrame(rows).to_csv(raw / "datapoints.csv", index=False)
+    (raw / "validation-0").mkdir()
     config = yaml.safe_load(TINY.read_text())
     del config["twin"], config["analyses"]
     config["dataset"] = "probe"
@@ -64,19 +65,23 @@ def _files(folder):
 
 
 def test_datapoint_id_with_a_path_is_refused_before_any_file_is_opened(tmp_path):
-    """An id climbing out of the project would make Snakemake open (truncate) a log file outside it."""
-    victim = tmp_path / "victim" / "important.log"
-    victim.parent.mkdir()
+    """An id climbing out of the project would make Snakemake open (truncate) a log file outside it: here
+    logs/probe/trajectory/<id>.log is tmp_path/outer/victim/important.log, and raw/probe/<id> (the job's
+    input) an existing folder tmp_path/victim/important."""
+    victim = tmp_path / "outer" / "victim" / "important.log"
+    victim.parent.mkdir(parents=True)
     victim.write_text("precious\n")
+    (tmp_path / "victim" / "important").mkdir(parents=True)
+    (tmp_path / "victim" / "important" / "notes.txt").write_text("more\n")
     project, config = _raw_project(tmp_path, train_id="../../../../victim/important")
     outside = {p: b for p, b in _files(tmp_path).items() if project not in p.parents}
     run = snakemake(project, "-j1", "-k", "--until", "trajectory", "--", "tables", config=config)
+    assert victim.read_text() == "precious\n"
+    assert {p: b for p, b in _files(tmp_path).items() if project not in p.parents} == outside
     assert run.returncode != 0
     output = run.stdout + run.stderr
     assert "datapoints.csv: line 2: id '../../../../victim/important' must be letters, digits" in output
     assert "no path separators" in output
-    assert victim.read_text() == "precious\n"
-    assert {p: b for p, b in _files(tmp_path).items() if project not in p.parents} == outside
 
 
 def test_unknown_motion_in_the_table_is_named_at_start_up(tmp_path):
