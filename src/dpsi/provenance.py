@@ -10,6 +10,8 @@ import importlib.metadata
 import json
 import logging
 import subprocess
+import sys
+import traceback
 from pathlib import Path
 
 from .pointclouds import atomic_output
@@ -63,21 +65,35 @@ def git_commit(folder: str | Path = ".") -> str:
         return "unknown"
 
 
+def provenance_path(output: str | Path) -> Path:
+    """The provenance record of ``output``: ``<output>.provenance.json``."""
+    return Path(str(output).rstrip("/") + ".provenance.json")
+
+
 def write_provenance(outputs, inputs, params: dict) -> None:
     """Write ``<output>.provenance.json`` beside each output (after the outputs exist)."""
     record = {"params": params, "inputs": {str(p): checksum(p) for p in inputs if Path(p).exists()},
               "packages": package_versions(), "git_commit": git_commit()}
     for output in outputs:
-        target = Path(str(output).rstrip("/") + ".provenance.json")
-        with atomic_output(target) as tmp:
+        with atomic_output(provenance_path(output)) as tmp:
             tmp.write_text(json.dumps(record, indent=1, default=str))
 
 
 @contextlib.contextmanager
 def recorded(outputs, inputs, params: dict, log_path: str | Path):
     """Run a stage with its messages (logging and stderr) going to ``log_path``; when it succeeds,
-    write the provenance of its ``outputs``. Yields a logger."""
+    write the provenance of its ``outputs``. Yields a logger.
+
+    The provenance records of earlier outputs are removed first, so none outlives its output; if the
+    stage fails, its error (message and traceback) is written to the log before it is raised again."""
+    outputs = list(outputs)
+    for output in outputs:
+        provenance_path(output).unlink(missing_ok=True)
     with open(log_path, "w") as log, contextlib.redirect_stderr(log):
         logging.basicConfig(stream=log, level=logging.INFO, format="%(asctime)s %(message)s", force=True)
-        yield logging.getLogger("dpsi")
-        write_provenance(list(outputs), list(inputs), params)
+        try:
+            yield logging.getLogger("dpsi")
+        except BaseException:
+            log.write(f"\nFAILED: {sys.exc_info()[1]}\n{traceback.format_exc()}")
+            raise
+        write_provenance(outputs, list(inputs), params)
