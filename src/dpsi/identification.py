@@ -128,7 +128,7 @@ def check_run(level: int, loss: str, training: Sequence[Datapoint], validation_s
         if len(dataset) == 0:
             raise IdentificationError(f"the {name} dataset is empty")
         for dp in dataset:
-            _check_datapoint(dp, name, config, fields)
+            check_datapoint(dp, name, config, fields)
     if initial is None:
         return random_initial(seed, level)
     try:
@@ -138,22 +138,27 @@ def check_run(level: int, loss: str, training: Sequence[Datapoint], validation_s
     return initial.replace(**LEVEL1_FIXED) if level == 1 else initial
 
 
-def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_targets: Sequence[str]) -> None:
-    """Raise naming ``dp`` if the simulator cannot hold it or one of its ``emd_targets`` (fields measured
-    by an earth mover's distance) is empty or has more points than the particles."""
+def check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_targets: Sequence[str]) -> None:
+    """Raise naming ``dp`` (of the ``dataset``, e.g. "training") if the simulator cannot hold it or one of its
+    ``emd_targets`` (fields measured by an earth mover's distance) is empty or has more points than the
+    particles; the messages name the option to change."""
     where = f"{dataset} datapoint {dp.id!r}"
     n = len(dp.particles)
     if n > config.max_particles:
         raise IdentificationError(f"{where} has {n} particles, more than the simulator's max_particles="
-                                  f"{config.max_particles}")
+                                  f"{config.max_particles}; lower the particle density or raise max_particles "
+                                  "(--max-particles, or simulator.max_particles in the workflow config)")
     if dp.trajectory.n_steps > config.max_steps:
         raise IdentificationError(f"{where} has {dp.trajectory.n_steps} steps, more than the simulator's "
                                   f"max_steps={config.max_steps}")
     for field in emd_targets:
         k = len(getattr(dp, field))
         if not 0 < k <= n:
+            density = 1.0 / dp.particle_volume
             raise IdentificationError(f"{where}: {field} has {k} points; the earth mover's distance needs "
-                                      f"between 1 and the particle count {n}")
+                                      f"between 1 and the particle count {n}: at {density:.3g} particles/m³ the "
+                                      f"object has too few particles, a density of at least ~{density * k / n:.2g} "
+                                      "would do (--density, or reconstruction.density in the workflow config)")
 
 
 def _fingerprint(level, loss, seed, initial: Parameters, training, validation_set) -> dict:
@@ -346,5 +351,6 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
     return summary
 
 
-__all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "IdentificationError", "targets", "inputs_key",
-           "evaluate", "training_gradient", "validation", "check_run", "summarise", "Progress", "identify"]
+__all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "IdentificationError", "targets",
+           "inputs_key", "check_datapoint", "evaluate", "training_gradient", "validation", "check_run", "summarise",
+           "Progress", "identify"]

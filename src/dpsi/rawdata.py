@@ -59,7 +59,7 @@ class StateSource:
             return [View(read_points(c), read_transform(t)) for c, t in self.paths]
         if self.form == "fused":
             return read_points(self.paths[0])
-        return read_mesh(self.paths[0])
+        return read_closed_mesh(self.paths[0])
 
 
 @dataclass(frozen=True)
@@ -107,6 +107,15 @@ class RawDataset:
 
 def _fail(path: Path, problem: str):
     raise RawDataError(f"{path}: {problem}")
+
+
+def read_closed_mesh(path: str | os.PathLike):
+    """The watertight mesh (m) in ``path``; :class:`RawDataError` naming the file if it is not closed."""
+    mesh = read_mesh(path)
+    if not is_watertight(mesh):
+        _fail(Path(path), "mesh is not watertight (every edge must join exactly two consistently wound faces); "
+                          "close its holes, or give the shape as a point cloud")
+    return mesh
 
 
 def _read_config(root: Path) -> tuple[float, tuple | None, dict[str, EffectorSpec]]:
@@ -180,9 +189,7 @@ def _state_source(folder: Path, state: str) -> StateSource:
             read_points(fused[0])
             return StateSource("fused", (fused[0],))
         if forms == ["mesh"]:
-            if not is_watertight(read_mesh(meshes[0])):
-                _fail(meshes[0], "mesh is not watertight (every edge must join exactly two consistently "
-                                 "wound faces)")
+            read_closed_mesh(meshes[0])
             return StateSource("mesh", (meshes[0],))
         pairs = []
         clouds = sorted((p for p in views_dir.iterdir() if _VIEW.match(p.name.split(".")[0])
@@ -279,4 +286,4 @@ def write_datapoints_table(path: str | os.PathLike, rows: list[dict]) -> None:
 
 
 __all__ = ["COLUMNS", "ROLES", "STATES", "EFFECTOR_KINDS", "RawDataError", "StateSource", "EffectorSpec",
-           "RawDatapoint", "RawDataset", "load_raw_dataset", "write_views", "write_datapoints_table"]
+           "RawDatapoint", "RawDataset", "read_closed_mesh", "load_raw_dataset", "write_views", "write_datapoints_table"]
