@@ -19,12 +19,12 @@ os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "false")  # stdout is for re
 
 from dpsi.datapoint import Datapoint
 from dpsi.effectors import BUILT_IN, by_name
-from dpsi.identification import check_datapoint, evaluate, identify
+from dpsi.identification import evaluate, identify
 from dpsi.losses import LOSSES
 from dpsi.motions import MOTIONS, get_motion, trajectory
 from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, NAMES, UNITS, Parameters, random_initial
 from dpsi.pointclouds import read_mesh
-from dpsi.prepare import fill_particles, footprint_centre, reconstruct_state, targets
+from dpsi.prepare import density_holding, fill_particles, footprint_centre, reconstruct_state, targets
 from dpsi.rawdata import StateSource
 from dpsi.simulation import SimulationError, Simulator, SimulatorConfig
 
@@ -49,7 +49,8 @@ def _shapes_datapoint(before: str, after: str, motion: str, effector: str, densi
     """A datapoint from a before and an after shape: the table is the plane z = ``table_z`` (m), by default
     through the before shape's lowest point; the tip starts at the top centre of the before shape's
     bounding box and follows the resampled ``motion``. Raises naming the file if the before shape does not
-    fit the simulator of ``config`` (its box, or its particle capacity at ``density``)."""
+    fit the simulator of ``config`` (its box, or its particle capacity at ``density``), or holds fewer
+    particles than the after shape's PCD target has points."""
     get_motion(motion)
     by_name(effector)
     _, before_mesh = reconstruct_state(_source(before), None, 0.0, before, config)
@@ -59,6 +60,11 @@ def _shapes_datapoint(before: str, after: str, motion: str, effector: str, densi
     particles = fill_particles(before_mesh, density, before, config)
     centre = footprint_centre(particles)
     prt, pcd, heights = targets(after_mesh, after_points, len(particles), density, centre, table_z)
+    if len(pcd) > len(particles):  # checked before simulating: the validation metrics include its EMD
+        raise ValueError(f"{before}: at --density {density:.3g} the object has {len(particles)} particles, fewer "
+                         f"than the {len(pcd)} points of the PCD target of {after} (the earth mover's distance "
+                         f"needs no more target points than particles); use --density "
+                         f"{density_holding(before_mesh, len(pcd), density):.3g} or more")
     start = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2]]
     return Datapoint(Path(before).stem, motion, effector, particles, 1.0 / density, trajectory(motion), start,
                      table_z, pcd, prt, heights, centre)
@@ -186,7 +192,6 @@ def _one_each(parser, args, name: str) -> list[str]:
 def _simulate(args) -> list[str]:
     config = SimulatorConfig(max_particles=args.max_particles)
     dp = _shapes_datapoint(args.before, args.after, args.motion, args.effector, args.density, args.table_z, config)
-    check_datapoint(dp, "the", config, ("pcd_target", "prt_target"))  # the validation metrics' EMD targets
     metrics = evaluate(Simulator(config), dp, args.params)
     result = {"particles": len(dp.particles), **metrics, "params": args.params.as_dict()}
     if args.json:

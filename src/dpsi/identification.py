@@ -128,7 +128,7 @@ def check_run(level: int, loss: str, training: Sequence[Datapoint], validation_s
         if len(dataset) == 0:
             raise IdentificationError(f"the {name} dataset is empty")
         for dp in dataset:
-            check_datapoint(dp, name, config, fields)
+            _check_datapoint(dp, name, config, fields)
     if initial is None:
         return random_initial(seed, level)
     try:
@@ -138,10 +138,10 @@ def check_run(level: int, loss: str, training: Sequence[Datapoint], validation_s
     return initial.replace(**LEVEL1_FIXED) if level == 1 else initial
 
 
-def check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_targets: Sequence[str]) -> None:
-    """Raise naming ``dp`` (of the ``dataset``, e.g. "training") if the simulator cannot hold it or one of its
-    ``emd_targets`` (fields measured by an earth mover's distance) is empty or has more points than the
-    particles; the messages name the option to change."""
+def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_targets: Sequence[str]) -> None:
+    """Raise naming ``dp`` if the simulator cannot hold it or one of its ``emd_targets`` (fields measured
+    by an earth mover's distance) is empty or has more points than the particles; the messages name the
+    option to change."""
     where = f"{dataset} datapoint {dp.id!r}"
     n = len(dp.particles)
     if n > config.max_particles:
@@ -154,11 +154,10 @@ def check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_ta
     for field in emd_targets:
         k = len(getattr(dp, field))
         if not 0 < k <= n:
-            density = 1.0 / dp.particle_volume
             raise IdentificationError(f"{where}: {field} has {k} points; the earth mover's distance needs "
-                                      f"between 1 and the particle count {n}: at {density:.3g} particles/m³ the "
-                                      f"object has too few particles, a density of at least ~{density * k / n:.2g} "
-                                      "would do (--density, or reconstruction.density in the workflow config)")
+                                      f"between 1 and the particle count {n}: raise the particle density (now "
+                                      f"{1.0 / dp.particle_volume:.3g} particles/m³; --density, or "
+                                      "reconstruction.density in the workflow config)")
 
 
 def _fingerprint(level, loss, seed, initial: Parameters, training, validation_set) -> dict:
@@ -352,5 +351,5 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
 
 
 __all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "IdentificationError", "targets",
-           "inputs_key", "check_datapoint", "evaluate", "training_gradient", "validation", "check_run", "summarise",
+           "inputs_key", "evaluate", "training_gradient", "validation", "check_run", "summarise",
            "Progress", "identify"]

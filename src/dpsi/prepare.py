@@ -142,6 +142,17 @@ def fill_particles(mesh: o3d.geometry.TriangleMesh, density: float, name: str = 
     return particles
 
 
+def density_holding(mesh: o3d.geometry.TriangleMesh, count: int, density: float, factor: float = 1.05,
+                    tries: int = 100) -> float:
+    """The lowest density ``density`` · ``factor``^j (j ≥ 1, particles/m³) at which filling ``mesh`` gives at
+    least ``count`` particles; ``ValueError`` if none of ``tries`` steps does."""
+    for _ in range(tries):
+        density *= factor
+        if len(fill(mesh, density)) >= count:
+            return density
+    raise ValueError(f"no density up to {density:.3g} particles/m³ fills the mesh with {count} particles")
+
+
 def footprint_centre(particles: np.ndarray) -> np.ndarray:
     """Middle (x, y) in m of the particles' footprint: the height-map centre, also the simulated box's
     centre (:attr:`dpsi.simulation.Scene.centre_xy`)."""
@@ -191,4 +202,4 @@ def prepare_datapoint(dataset: RawDataset, datapoint: str | RawDatapoint, densit
 
 
 __all__ = ["SURFACE_SPACING", "fuse_state", "surface_points", "state_points", "state_mesh", "reconstruct_state",
-           "check_extent", "check_fits", "fill_particles", "footprint_centre", "targets", "trajectory_and_start", "build_datapoint", "prepare_datapoint"]
+           "check_extent", "check_fits", "density_holding", "fill_particles", "footprint_centre", "targets", "trajectory_and_start", "build_datapoint", "prepare_datapoint"]
