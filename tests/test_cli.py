@@ -167,12 +167,14 @@ def test_too_low_density_names_one_that_works(capsys, monkeypatch, shapes):
 
 
 @pytest.mark.parametrize("command, option, message", [
-    (["identify", "--loss", "prt_cd", "--out", "x", "--param", "mu_table=0.5"], [],
+    (["identify", "--loss", "prt_cd", "--iterations", "1", "--param", "mu_table=0.5"], [],
      "argument --param: level 1 keeps mu_table fixed"),
     (["simulate"], ["--table-z", "nan"], "argument --table-z: must be a finite number, got 'nan'"),
 ])
-def test_ignored_or_non_finite_options_are_refused(capsys, shapes, command, option, message):
+def test_ignored_or_non_finite_options_are_refused(capsys, shapes, tmp_path, command, option, message):
+    out = ["--out", str(tmp_path / "run")] if command[0] == "identify" else []
     with pytest.raises(SystemExit) as exit_:
-        main([command[0], *shapes, *command[1:], *option])
+        main([command[0], *shapes, *command[1:], *out, *option])
     assert exit_.value.code == 2
     assert message in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
