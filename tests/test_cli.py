@@ -114,7 +114,7 @@ def _options(shapes, **change):
 
 
 def _open_mesh(folder):
-    """The before box mesh with 20 of its faces deleted."""
+    """A closed sphere mesh with 20 of its faces deleted."""
     mesh = o3d.geometry.TriangleMesh.create_sphere(0.015, resolution=10).translate((0, 0, 0.015))
     mesh.triangles = o3d.utility.Vector3iVector(np.asarray(mesh.triangles)[20:])
     write_mesh(folder / "open.obj", mesh)

@@ -89,9 +89,9 @@ BAD = {
     "empty cloud": (lambda r: _corrupt(r / "dp1/before/view_2.ply", ""), "empty"),
     "malformed cloud": (lambda r: _corrupt(r / "dp1/before/view_0.ply", "ply\nformat nonsense\n"), "end_header"),
     "truncated binary cloud": (lambda r: _truncate(r / "dp1/before/view_1.ply"), "truncated PLY file"),
-    "truncated ASCII cloud": (lambda r: _corrupt(r / "dp1/before/view_0.ply", "ply\nformat ascii 1.0\nelement vertex 3\n"
-                                                 "property float x\nproperty float y\nproperty float z\nend_header\n"
-                                                 "0 0 0\n1 0 0\n"), "declares 3 rows"),
+    "truncated ASCII cloud": (lambda r: _corrupt(r / "dp1/before/view_0.ply", "ply\nformat ascii 1.0\n"
+                                                 "element vertex 3\nproperty float x\nproperty float y\n"
+                                                 "property float z\nend_header\n0 0 0\n1 0 0\n"), "declares 3 rows"),
     "truncated binary mesh": (lambda r: _truncate(r / "dp2/after_mesh.ply", keep=0.9), "truncated PLY file"),
     "NaN vertex in an OBJ mesh": (lambda r: _nan_vertex(r / "dp2/before_mesh.obj"), r"line \d+: vertex 'nan"),
     "pickled npy": (lambda r: np.save(r / "dp1/after_fused.npy", np.array([{}], dtype=object), allow_pickle=True)

@@ -202,4 +202,5 @@ def prepare_datapoint(dataset: RawDataset, datapoint: str | RawDatapoint, densit
 
 
 __all__ = ["SURFACE_SPACING", "fuse_state", "surface_points", "state_points", "state_mesh", "reconstruct_state",
-           "check_extent", "check_fits", "density_holding", "fill_particles", "footprint_centre", "targets", "trajectory_and_start", "build_datapoint", "prepare_datapoint"]
+           "check_extent", "check_fits", "density_holding", "fill_particles", "footprint_centre", "targets",
+           "trajectory_and_start", "build_datapoint", "prepare_datapoint"]

@@ -286,4 +286,5 @@ def write_datapoints_table(path: str | os.PathLike, rows: list[dict]) -> None:
 
 
 __all__ = ["COLUMNS", "ROLES", "STATES", "EFFECTOR_KINDS", "RawDataError", "StateSource", "EffectorSpec",
-           "RawDatapoint", "RawDataset", "read_closed_mesh", "load_raw_dataset", "write_views", "write_datapoints_table"]
+           "RawDatapoint", "RawDataset", "read_closed_mesh", "load_raw_dataset", "write_views",
+           "write_datapoints_table"]
