@@ -36,9 +36,9 @@ def datapoints_table():
     time (ids become file names, so an unsafe id must never reach a rule)."""
     if "twin" in config:
         plan = dpsi_twin.plan_from_config(config["twin"]["groups"])
-        return check_table(
-            pd.DataFrame(dpsi_twin.plan_rows(plan)).astype(str), "the twin's plan"
-        )
+        table = pd.DataFrame(dpsi_twin.plan_rows(plan))
+        check_table(table.astype(str), "the twin's plan")
+        return table
     path = Path(RAW) / "datapoints.csv"
     if not path.is_file():
         raise WorkflowError(
