@@ -37,7 +37,7 @@ import numpy as np
 import pandas as pd
 
 from dpsi.datapoint import Datapoint
-from dpsi.losses import LOSSES, VALIDATION_METRICS, HeightMapTarget, Targets, loss_by_name, validation_metrics
+from dpsi.losses import LOSSES, VALIDATION_METRICS, Targets, loss_by_name, validation_metrics
 from dpsi.optim import Adam, screen_gradients
 from dpsi.parameters import IDENTIFIED, LEVEL1_FIXED, NAMES, Parameters, random_initial
 from dpsi.pointclouds import atomic_output
@@ -63,14 +63,15 @@ class IdentificationError(ValueError):
 
 def targets(dp: Datapoint) -> Targets:
     """The loss targets of a datapoint."""
-    return Targets(pcd=dp.pcd_target, prt=dp.prt_target, heightmap=HeightMapTarget(dp.heightmap, dp.centre_xy, dp.table_z))
+    return Targets(pcd=dp.pcd_target, prt=dp.prt_target, heightmap=dp.heightmap_target())
 
 
 def evaluate(simulator: Simulator, dp: Datapoint, params: Parameters) -> dict[str, float]:
     """Simulate ``dp`` with ``params`` and return its five validation metrics (mm); raises
     :class:`SimulationError` if the simulation fails."""
     final = simulator.forward(dp.scene(), params, keep_substeps=False)
-    return validation_metrics(final, dp.pcd_target, dp.prt_target, dp.heightmap, dp.centre_xy, dp.table_z)
+    return validation_metrics(final, dp.pcd_target, dp.prt_target, dp.heightmap, dp.centre_xy, dp.table_z,
+                              dp.particle_size)
 
 
 def _nan_gradient() -> dict[str, float]:

@@ -18,8 +18,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from dpsi.heightmap import SIZE, height_map, heightmap_distance_mm
+from dpsi.heightmap import SIZE, heightmap_distance_mm
 from dpsi.losses import VALIDATION_METRICS as METRICS
+from dpsi.losses import simulated_heightmap
 from dpsi.parameters import IDENTIFIED, LOWER, UPPER
 from dpsi.pointclouds import atomic_output
 
@@ -159,8 +160,7 @@ def plot_heightmaps(datapoint: Datapoint, final_particles, png_path: str | Path,
     """Real vs simulated height map (mm above the table) and simulated − real (mm), with the
     height-map distance (mm) in the title. ``final_particles`` (n, 3) in m."""
     real = np.asarray(datapoint.heightmap, dtype=float)
-    sim = height_map(_checked_points(final_particles, "final particles"), datapoint.centre_xy,
-                     cells=real.shape[0], floor=datapoint.table_z)
+    sim = simulated_heightmap(_checked_points(final_particles, "final particles"), datapoint.heightmap_target())
     distance = heightmap_distance_mm(sim, real)
     real_mm, sim_mm = ((m - datapoint.table_z) * MM_PER_M for m in (real, sim))
     diff_mm = sim_mm - real_mm
