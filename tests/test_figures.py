@@ -8,6 +8,7 @@ from dpsi.effectors import ROUND
 from dpsi.heightmap import height_map, heightmap_distance_mm
 from dpsi.identification import COLUMNS
 from dpsi.motions import Trajectory
+from dpsi.losses import simulated_heightmap
 from dpsi.parameters import IDENTIFIED, LOWER, NAMES, UPPER
 from dpsi.reporting.figures import plot_heightmaps, plot_particles, plot_runs
 
@@ -104,7 +105,7 @@ def test_plot_heightmaps_writes_png_and_pdf(tmp_path, datapoint):
     fig = plot_heightmaps(datapoint, datapoint.particles, tmp_path / "hm.png", tmp_path / "hm.pdf",
                           title="synthetic")
     assert_figure(tmp_path, "hm")
-    sim = height_map(datapoint.particles, datapoint.centre_xy, floor=datapoint.table_z)
+    sim = simulated_heightmap(datapoint.particles, datapoint.heightmap_target())
     real_mm, sim_mm = ((m - datapoint.table_z) * 1000 for m in (datapoint.heightmap, sim))
     shown = [ax.images[0].get_array() for ax in fig.axes[:3]]
     np.testing.assert_allclose(shown[0], real_mm.T)

@@ -10,6 +10,7 @@ import numpy as np
 
 from .effectors import Effector
 from .files import load_arrays, save_arrays
+from .losses import HeightMapTarget
 from .motions import Trajectory
 
 
@@ -36,6 +37,14 @@ class Datapoint:
     heightmap: np.ndarray
     centre_xy: np.ndarray
 
+    @property
+    def particle_size(self) -> float:
+        """Side (m) of the cube each particle stands for: the fill lattice spacing."""
+        return float(self.particle_volume) ** (1.0 / 3.0)
+
+    def heightmap_target(self) -> HeightMapTarget:
+        """The captured after height map as a loss target, with this datapoint's particle cubes."""
+        return HeightMapTarget(self.heightmap, self.centre_xy, self.table_z, self.particle_size)
 
 _ARRAYS = ("particles", "start", "pcd_target", "prt_target", "heightmap", "centre_xy", "trajectory_positions",
            "trajectory_yaw", "effector_sdf")

@@ -1,4 +1,4 @@
-"""The datapoints table (:data:`COLUMNS`) and the datasets of SPEC §6 selected from it.
+"""The datasets of SPEC §6, selected from a datapoints table (:mod:`dpsi.datapoints_table`).
 
 Per level, motion A is poking-1 / poking-shifting-1 and motion B poking-2 / poking-shifting-2:
 
@@ -14,11 +14,8 @@ from __future__ import annotations
 
 import pandas as pd
 
+from dpsi.datapoints_table import COLUMNS
 from dpsi.motions import MOTIONS
-
-COLUMNS = ("id", "motion", "effector", "level", "role", "material")
-"""Columns of a datapoints table (docs/raw-format.md)."""
-ROLES = ("train", "validation", "ood")
 DATASETS = ("12-mix", "6-mix", "1-rectangle", "1-round", "1-cylinder")
 EFFECTORS = ("rectangle", "round", "cylinder")
 MOTION_A = {1: "poking-1", 2: "poking-shifting-1"}
@@ -111,4 +108,4 @@ def planning_start(table: pd.DataFrame) -> str:
     return found[0]
 
 
-__all__ = ["COLUMNS", "ROLES", "PLANNING_MOTION", "planning_start", "DATASETS", "EFFECTORS", "MOTION_A", "MOTION_B", "LONG_MOTIONS", "select", "validation", "ood"]
+__all__ = ["PLANNING_MOTION", "planning_start", "DATASETS", "EFFECTORS", "MOTION_A", "MOTION_B", "LONG_MOTIONS", "select", "validation", "ood"]

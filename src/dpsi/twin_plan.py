@@ -10,7 +10,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from dpsi.datasets import EFFECTORS, LONG_MOTIONS, MOTION_A, MOTION_B, ROLES
+from dpsi.datapoints_table import ROLES
+from dpsi.datasets import EFFECTORS, LONG_MOTIONS, MOTION_A, MOTION_B
 from dpsi.effectors import by_name
 from dpsi.motions import get_motion
 from dpsi.parameters import Parameters

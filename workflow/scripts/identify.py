@@ -1,5 +1,5 @@
-"""One identification run (level, loss, dataset, seed; for the analyses also material and start),
-resumable from its state file; its summary carries these labels."""
+"""One identification run (level, loss, dataset, seed; for the analyses also material and start, for the
+identifiability ladder its rung), resumable from its state file; its summary carries these labels."""
 
 import sys
 from pathlib import Path
@@ -12,8 +12,8 @@ from dpsi.simulation import Simulator, SimulatorConfig
 from dpsi.twin_plan import load_truth
 
 w, p = snakemake.wildcards, snakemake.params
-labels = dict(level=int(w.level), loss=w.loss, dataset=w.dataset, seed=int(w.seed), start=p.initial,
-              material=w.get("material", "clay"))
+labels = {**dict(w.items()), "level": int(w.level), "seed": int(w.seed), "start": p.initial,
+          "material": w.get("material", "clay")}
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
     training = [load_datapoint(f) for f in snakemake.input.training]
     truth = load_truth(Path(snakemake.input.truth[0]).parent)["materials"]["clay"] if snakemake.input.truth else None

@@ -10,15 +10,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib import colors
 
+from dpsi.datapoint import Datapoint
 from dpsi.reporting.figures import MM_PER_M, new_figure, save
 
-if TYPE_CHECKING:  # importing dpsi.datapoint at run time would load the simulator
-    from dpsi.datapoint import Datapoint
 
 FRAMES = 5
 """Frames per trajectory, evenly spaced in time from the start to the end."""

@@ -28,15 +28,15 @@ def read_summary(path: str | os.PathLike) -> dict:
 
 def load_runs(summaries: Sequence[str | os.PathLike],
               logs: Sequence[str | os.PathLike]) -> tuple[list[dict], pd.DataFrame]:
-    """The run summaries (labels as keys) and all log rows in one table with the labels as extra columns;
+    """The run summaries (labels as keys) and all log rows in one table with each run's labels (those of
+    :data:`LABELS` and any other its summary carries, e.g. the ladder's rung) as extra columns;
     ``summaries`` and ``logs`` are aligned, one entry per run."""
     if len(summaries) != len(logs):
         raise ValueError(f"{len(summaries)} summaries and {len(logs)} logs: give one of each per run")
     if not summaries:
         raise ValueError("no runs to load")
     records = [read_summary(s) for s in summaries]
-    rows = pd.concat([pd.read_csv(log).assign(**{k: r[k] for k in LABELS}) for log, r in zip(logs, records)],
-                     ignore_index=True)
+    rows = pd.concat([pd.read_csv(log).assign(**r["labels"]) for log, r in zip(logs, records)], ignore_index=True)
     return records, rows
 
 

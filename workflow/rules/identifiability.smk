@@ -1,0 +1,178 @@
+"""The identifiability ladder (dpsi.identifiability): identification runs on three rungs of the twin that
+share datapoints and differ in how the targets come about: R0 same model, R1 reconstructed at the
+identification resolution, R2 the main pipeline's finer twin. `snakemake identifiability` builds the ladder of
+the config; `tables` and `figures` include the rungs listed in `tables_rungs` (R0 in the quick default).
+"""
+
+import itertools
+
+if "identifiability" in ANALYSES:
+    if "twin" not in config:
+        raise WorkflowError(
+            "analyses.identifiability needs a synthetic twin (the truth): add a `twin` section to the config"
+        )
+    LADDER = ANALYSES["identifiability"]
+    LADDER_ROOT = f"{RESULTS}/identifiability"
+    LADDER_RUN = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
+    LADDER_REFERENCE = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{dataset}}/reference.json"
+
+    def ladder_prepared(rung, ids):
+        """Prepared datapoints of a rung: R2 is the main pipeline's."""
+        if rung == "R2":
+            return prepared(ids)
+        return [f"{LADDER_ROOT}/{rung}/prepared/{i}.npz" for i in ids]
+
+    def ladder_runs(rungs):
+        """Folder → labels of every ladder run on `rungs` (each run's summary carries them too)."""
+        runs = {}
+        for rung, level, loss, dataset, seed in itertools.product(
+            rungs,
+            LADDER["levels"],
+            LADDER["losses"],
+            LADDER["datasets"],
+            LADDER["seeds"],
+        ):
+            try:
+                training_ids(level, dataset), validation_ids(level)
+            except ValueError as err:
+                raise WorkflowError(f"analysis identifiability: {err}")
+            labels = dict(rung=rung, level=level, loss=loss, dataset=dataset, seed=seed)
+            runs[LADDER_RUN.format(**labels)] = labels
+        return runs
+
+    def ladder_references(runs):
+        return sorted({LADDER_REFERENCE.format(**labels) for labels in runs.values()})
+
+    LADDER_TABLES = {"identifiability": LADDER["rungs"]}
+    TABLES_RUNGS = LADDER.get("tables_rungs", LADDER["rungs"])
+    if list(TABLES_RUNGS) != list(LADDER["rungs"]):
+        LADDER_TABLES["identifiability_" + "-".join(TABLES_RUNGS)] = TABLES_RUNGS
+
+    def ladder_outputs(name):
+        return table_files(name, "../report/identifiability.rst") + figure_files(
+            name, "../report/identifiability_figure.rst"
+        )
+
+    TABLES_LADDER = list(LADDER_TABLES)[-1]
+    ANALYSIS_TABLES += ladder_outputs(TABLES_LADDER)[:3]
+    ANALYSIS_FIGURES += ladder_outputs(TABLES_LADDER)[3:]
+
+    rule ladder_same_model:
+        input:
+            datapoint=f"{RESULTS}/prepared/{{id}}.npz",
+            truth=truth_file(),
+            code=code("ladder_same_model"),
+        output:
+            f"{LADDER_ROOT}/R0/prepared/{{id}}.npz",
+        log:
+            log_file("identifiability/R0_{id}"),
+        conda:
+            "../envs/dpsi.yaml"
+        threads: 1
+        resources:
+            mem_mb=2000,
+            runtime=10,
+            gpu=GPU,
+        params:
+            material=lambda w: TABLE.set_index("id").loc[w.id, "material"],
+            simulator=simulator_params(),
+        script:
+            "../scripts/ladder_same_model.py"
+
+    rule ladder_reconstructed_twin:
+        input:
+            truth=truth_file(),
+            code=code("ladder_reconstructed_twin"),
+        output:
+            prepared=f"{LADDER_ROOT}/R1/prepared/{{id}}.npz",
+            raw=directory(f"{LADDER_ROOT}/R1/raw/{{id}}"),
+        log:
+            log_file("identifiability/R1_{id}"),
+        conda:
+            "../envs/dpsi.yaml"
+        threads: 1
+        resources:
+            mem_mb=4000,
+            runtime=30,
+        params:
+            twin=twin_settings(),
+            simulator=simulator_params(),
+            density=config["reconstruction"]["density"],
+        script:
+            "../scripts/ladder_reconstructed_twin.py"
+
+    use rule identify as identify_ladder with:
+        input:
+            training=lambda w: ladder_prepared(w.rung, training_ids(w.level, w.dataset)),
+            validation=lambda w: ladder_prepared(w.rung, validation_ids(w.level)),
+            truth=truth_file(),
+            code=code("identify"),
+        output:
+            summary=f"{LADDER_RUN}/summary.json",
+            log=f"{LADDER_RUN}/log.csv",
+        log:
+            log_file("identifiability/{rung}_L{level}_{loss}_{dataset}_seed{seed}"),
+        wildcard_constraints:
+            rung="R[0-2]",
+        params:
+            iterations=LADDER["iterations"],
+            initial=LADDER["initial"],
+            simulator=simulator_params(),
+
+    rule ladder_reference:
+        input:
+            training=lambda w: ladder_prepared(w.rung, training_ids(w.level, w.dataset)),
+            validation=lambda w: ladder_prepared(w.rung, validation_ids(w.level)),
+            truth=truth_file(),
+            code=code("ladder_reference"),
+        output:
+            LADDER_REFERENCE,
+        log:
+            log_file("identifiability/{rung}_L{level}_{dataset}_reference"),
+        wildcard_constraints:
+            rung="R[0-2]",
+        conda:
+            "../envs/dpsi.yaml"
+        threads: 1
+        resources:
+            mem_mb=2000,
+            runtime=20,
+            gpu=GPU,
+        params:
+            simulator=simulator_params(),
+        script:
+            "../scripts/ladder_reference.py"
+
+    rule identifiability_results:
+        input:
+            summaries=lambda w: run_files(
+                ladder_runs(LADDER_TABLES[w.ladder]), "summary.json"
+            ),
+            logs=lambda w: run_files(ladder_runs(LADDER_TABLES[w.ladder]), "log.csv"),
+            references=lambda w: ladder_references(ladder_runs(LADDER_TABLES[w.ladder])),
+            code=code("identifiability"),
+        output:
+            table=table_files("{ladder}", "../report/identifiability.rst"),
+            figure=figure_files("{ladder}", "../report/identifiability_figure.rst"),
+        log:
+            log_file("{ladder}"),
+        wildcard_constraints:
+            ladder="|".join(LADDER_TABLES),
+        conda:
+            "../envs/dpsi.yaml"
+        threads: 1
+        resources:
+            mem_mb=1000,
+            runtime=5,
+        params:
+            references=lambda w: {
+                LADDER_REFERENCE.format(**labels): labels
+                for labels in ladder_runs(LADDER_TABLES[w.ladder]).values()
+            },
+        script:
+            "../scripts/identifiability.py"
+
+    rule identifiability:
+        input:
+            ladder_outputs("identifiability"),
+        localrule: True
