@@ -8,6 +8,7 @@ import pandas as pd
 import pytest
 
 from dpsi.datapoint import Datapoint
+from dpsi.effectors import by_name
 from dpsi.identifiability import COLUMNS, LADDER_LOSSES, ladder_table, recovery_summary, reference, same_model_datapoint
 from dpsi.identification import identify
 from dpsi.parameters import IDENTIFIED
@@ -20,7 +21,7 @@ def untargeted(effector: str, depth: float) -> Datapoint:
     particles = block()
     centre = particles[:, :2].mean(axis=0)
     start = np.array([*centre, particles[:, 2].max() + SPACING / 2])
-    return Datapoint(effector, "poke", effector, particles, SPACING**3, poke(depth), start, 0.0,
+    return Datapoint(effector, "poke", by_name(effector), particles, SPACING**3, poke(depth), start, 0.0,
                      particles, particles, np.zeros((32, 32)), centre)
 
 
