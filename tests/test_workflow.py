@@ -93,14 +93,15 @@ def test_unknown_motion_in_the_table_is_named_at_start_up(tmp_path):
 
 
 def test_failing_raw_data_job_writes_its_error_to_its_log(tmp_path):
-    """The raw dataset lacks the planner trajectory of poking-2: each trajectory job's log holds the
-    message naming the file, and the traceback."""
+    """The raw dataset lacks the planner trajectory of poking-2: the job validating each raw datapoint
+    (check_raw, before the trajectory stage) fails, its log holding the message naming the file and the
+    traceback."""
     project, config = _raw_project(tmp_path)
     (project / "raw" / "probe" / "train-0").mkdir()
     run = snakemake(project, "-j1", "-k", "--until", "trajectory", "--", "tables", config=config)
     assert run.returncode != 0
     for datapoint in ("train-0", "validation-0"):
-        log = (project / "logs" / "probe" / "trajectory" / f"{datapoint}.log").read_text()
+        log = (project / "results" / "logs" / "check_raw" / f"{datapoint}.log").read_text()
         assert "FAILED: " in log and "trajectories/poking-2.csv" in log and "Traceback" in log, log
 
 

@@ -4,6 +4,7 @@ library is imported here (no Taichi, Open3D or PyMeshLab), so that parsing the w
 
 import ast
 import functools
+import itertools
 import re
 from pathlib import Path
 
@@ -272,3 +273,42 @@ def parameter_source_inputs(source):
             )
         return runs(level=2)
     return []
+
+
+# The identifiability ladder's helpers (identifiability.smk defines LADDER, LADDER_RUN and LADDER_REFERENCE).
+
+
+def ladder_prepared(rung, ids):
+    """Prepared datapoints of a rung: R2 is the main pipeline's."""
+    if rung == "R2":
+        return prepared(ids)
+    return [f"{LADDER_ROOT}/{rung}/prepared/{i}.npz" for i in ids]
+
+
+def ladder_runs(rungs):
+    """Folder → labels of every ladder run on `rungs` (each run's summary carries them too)."""
+    runs = {}
+    for rung, level, loss, dataset, seed in itertools.product(
+        rungs,
+        LADDER["levels"],
+        LADDER["losses"],
+        LADDER["datasets"],
+        LADDER["seeds"],
+    ):
+        try:
+            training_ids(level, dataset), validation_ids(level)
+        except ValueError as err:
+            raise WorkflowError(f"analysis identifiability: {err}")
+        labels = dict(rung=rung, level=level, loss=loss, dataset=dataset, seed=seed)
+        runs[LADDER_RUN.format(**labels)] = labels
+    return runs
+
+
+def ladder_references(runs):
+    return sorted({LADDER_REFERENCE.format(**labels) for labels in runs.values()})
+
+
+def ladder_outputs(name):
+    return table_files(name, "../report/identifiability.rst") + figure_files(
+        name, "../report/identifiability_figure.rst"
+    )

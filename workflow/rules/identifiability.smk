@@ -4,8 +4,6 @@ identification resolution, R2 the main pipeline's finer twin. `snakemake identif
 the config; `tables` and `figures` include the rungs listed in `tables_rungs` (R0 in the quick default).
 """
 
-import itertools
-
 if "identifiability" in ANALYSES:
     if "twin" not in config:
         raise WorkflowError(
@@ -16,42 +14,10 @@ if "identifiability" in ANALYSES:
     LADDER_RUN = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
     LADDER_REFERENCE = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{dataset}}/reference.json"
 
-    def ladder_prepared(rung, ids):
-        """Prepared datapoints of a rung: R2 is the main pipeline's."""
-        if rung == "R2":
-            return prepared(ids)
-        return [f"{LADDER_ROOT}/{rung}/prepared/{i}.npz" for i in ids]
-
-    def ladder_runs(rungs):
-        """Folder → labels of every ladder run on `rungs` (each run's summary carries them too)."""
-        runs = {}
-        for rung, level, loss, dataset, seed in itertools.product(
-            rungs,
-            LADDER["levels"],
-            LADDER["losses"],
-            LADDER["datasets"],
-            LADDER["seeds"],
-        ):
-            try:
-                training_ids(level, dataset), validation_ids(level)
-            except ValueError as err:
-                raise WorkflowError(f"analysis identifiability: {err}")
-            labels = dict(rung=rung, level=level, loss=loss, dataset=dataset, seed=seed)
-            runs[LADDER_RUN.format(**labels)] = labels
-        return runs
-
-    def ladder_references(runs):
-        return sorted({LADDER_REFERENCE.format(**labels) for labels in runs.values()})
-
     LADDER_TABLES = {"identifiability": LADDER["rungs"]}
     TABLES_RUNGS = LADDER.get("tables_rungs", LADDER["rungs"])
     if list(TABLES_RUNGS) != list(LADDER["rungs"]):
         LADDER_TABLES["identifiability_" + "-".join(TABLES_RUNGS)] = TABLES_RUNGS
-
-    def ladder_outputs(name):
-        return table_files(name, "../report/identifiability.rst") + figure_files(
-            name, "../report/identifiability_figure.rst"
-        )
 
     TABLES_LADDER = list(LADDER_TABLES)[-1]
     ANALYSIS_TABLES += ladder_outputs(TABLES_LADDER)[:3]
