@@ -182,7 +182,37 @@ if "identifiability" in ANALYSES:
         script:
             "../scripts/identifiability.py"
 
+    def bias_datapoints():
+        """The level-1 training datapoints of the ladder's datasets (the sources of bias are per datapoint)."""
+        ids = [i for d in LADDER["datasets"] for i in training_ids(min(LADDER["levels"]), d)]
+        return list(dict.fromkeys(ids))
+
+    rule identifiability_bias:
+        input:
+            datapoints=prepared(bias_datapoints()),
+            reconstructed=ladder_prepared("R1", bias_datapoints()),
+            twin=[f"{RAW}/{i}" for i in bias_datapoints()],
+            truth=truth_file(),
+            code=library("identifiability", "identification", "simulation", "losses"),
+        output:
+            sources=multiext("results/tables/identifiability_bias", ".csv", ".md", ".tex"),
+            minima=multiext("results/tables/identifiability_minima", ".csv", ".md", ".tex"),
+        log:
+            "logs/identifiability_bias.log",
+        conda:
+            "../envs/dpsi.yaml"
+        threads: 1
+        resources:
+            mem_mb=3000,
+            runtime=30,
+        params:
+            simulator=simulator_params(),
+            density=config["reconstruction"]["density"],
+        script:
+            "../scripts/identifiability_bias.py"
+
     rule identifiability:
         input:
             ladder_outputs("identifiability"),
+            rules.identifiability_bias.output,
         localrule: True
