@@ -28,9 +28,9 @@ import argparse
 import json
 import math
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import open3d as o3d
@@ -140,26 +140,30 @@ def simulated_mm(simulator: Simulator, dp: Datapoint, params: Parameters) -> flo
 
 
 def comparison_rows(simulator: Simulator, datapoints: Sequence[Datapoint], identified: Parameters,
-                    hand_picked: Parameters) -> list[dict]:
-    """Per datapoint: height-map distances (mm) to its real after state of the ``identified`` and
-    ``hand_picked`` simulations and of the unmoved before particles, and the relative change identified
-    vs hand-picked (negative: identified is closer)."""
+                    hand_picked: Parameters, training: str | None = None) -> list[dict]:
+    """Per datapoint: its role (``training`` if its id is ``training``, else unseen), the height-map
+    distances (mm) to its real after state of the ``identified`` and ``hand_picked`` simulations and of
+    the unmoved before particles, and the relative change identified vs hand-picked (negative: identified
+    is closer)."""
     rows = []
     for dp in datapoints:
         ident, hand = simulated_mm(simulator, dp, identified), simulated_mm(simulator, dp, hand_picked)
-        rows.append({"pair": dp.id, "effector": dp.effector, "motion": dp.motion, "particles": len(dp.particles),
-                     "identified_mm": ident, "hand_picked_mm": hand, "unmoved_mm": heightmap_mm(dp, dp.particles),
+        rows.append({"pair": dp.id, "role": "training" if dp.id == training else "unseen", "effector": dp.effector,
+                     "motion": dp.motion, "particles": len(dp.particles), "identified_mm": ident,
+                     "hand_picked_mm": hand, "unmoved_mm": heightmap_mm(dp, dp.particles),
                      "change": (ident - hand) / hand})
     return rows
 
 
 def markdown_table(rows: Sequence[dict]) -> str:
     """The comparison rows as a markdown table (distances in mm, change in %)."""
-    lines = ["| pair | effector | motion | particles | identified (mm) | hand-picked (mm) | unmoved (mm) | "
-             "identified vs hand-picked |", "|---|---|---|---|---|---|---|---|"]
+    header = ("| pair | role | effector | motion | particles | identified (mm) | hand-picked (mm) | unmoved (mm) | "
+              "identified vs hand-picked |")
+    lines = [header, "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['pair']} | {r['effector']} | {r['motion']} | {r['particles']} | {r['identified_mm']:.0f} | "
-                     f"{r['hand_picked_mm']:.0f} | {r['unmoved_mm']:.0f} | {100 * r['change']:+.1f} % |")
+        lines.append(f"| {r['pair']} | {r['role']} | {r['effector']} | {r['motion']} | {r['particles']} | "
+                     f"{r['identified_mm']:.0f} | {r['hand_picked_mm']:.0f} | {r['unmoved_mm']:.0f} | "
+                     f"{100 * r['change']:+.1f} % |")
     return "\n".join(lines) + "\n"
 
 
@@ -167,7 +171,8 @@ def identify_on_real(shared: str | Path, train: str, out_dir: str | Path, iterat
                      loss: str, simulator: Simulator, seed: int = 0, progress=None) -> tuple[dict, list[dict]]:
     """Level-1 identification on pair ``train`` from the hand-picked values (validation set: the training
     pair itself, so the other pairs stay unseen; the best iteration is the one with the lowest height-map
-    distance on it), then :func:`comparison_rows` on every other pair. Returns (summary, rows)."""
+    distance on it), then :func:`comparison_rows` on the training pair and every other pair. Returns
+    (summary, rows)."""
     if train not in PAIRS:
         raise ValueError(f"unknown training pair {train!r}; known pairs are {sorted(PAIRS)}")
     datapoints = {name: real_datapoint(shared, name, density, seed, simulator.config) for name in PAIRS}
@@ -177,8 +182,8 @@ def identify_on_real(shared: str | Path, train: str, out_dir: str | Path, iterat
     if summary["best"] is None:
         raise RuntimeError(f"identification on {train} produced no finite validation height map; see {out_dir}")
     identified = Parameters.checked(**summary["best"]["parameters"])
-    unseen = [dp for name, dp in datapoints.items() if name != train]
-    return summary, comparison_rows(simulator, unseen, identified, HAND_PICKED.replace(**LEVEL1_FIXED))
+    ordered = [datapoints[train], *(dp for name, dp in datapoints.items() if name != train)]
+    return summary, comparison_rows(simulator, ordered, identified, HAND_PICKED.replace(**LEVEL1_FIXED), train)
 
 
 def report(summary: dict, rows: Sequence[dict], train: str, loss: str, density: float, iterations: int,
