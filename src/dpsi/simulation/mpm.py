@@ -258,7 +258,7 @@ class Simulator:
         return base, fx, W, D
 
     @ti.func
-    def stencil_node(self, base, fx, W, D, i: ti.template(), j: ti.template(), k: ti.template()):
+    def stencil_node(self, base, fx, W, D, i, j, k):
         """Node (i, j, k) of a :meth:`stencil`: its index, weight, offset from the particle (m), and the
         weight's gradient with respect to the particle position (1/m)."""
         w = W[i, 0] * W[j, 1] * W[k, 2]
@@ -272,7 +272,7 @@ class Simulator:
         """grid momentum += w (m v + A (x_i − x_p)), grid mass += w m, A the affine momentum."""
         mass, v, A = self.particle_mass[None], self.v[s, p], self.affine[p]
         base, fx, W, D = self.stencil(self.x[s, p])
-        for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+        for i, j, k in ti.ndrange(3, 3, 3):
             node, w, dpos, _ = self.stencil_node(base, fx, W, D, i, j, k)
             self.grid_p[node] += w * (mass * v + A @ dpos)
             self.grid_m[node] += w * mass
@@ -284,7 +284,7 @@ class Simulator:
         x_bar, v_bar, m_bar = ti.Vector.zero(float, 3), ti.Vector.zero(float, 3), 0.0
         A_bar = ti.Matrix.zero(float, 3, 3)
         base, fx, W, D = self.stencil(self.x[s, p])
-        for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+        for i, j, k in ti.ndrange(3, 3, 3):
             node, w, dpos, grad_w = self.stencil_node(base, fx, W, D, i, j, k)
             p_bar, m_node_bar = self.grid_p_bar[node], self.grid_m_bar[node]
             v_bar += w * mass * p_bar
@@ -299,7 +299,7 @@ class Simulator:
         v = ti.Vector.zero(float, 3)
         C = ti.Matrix.zero(float, 3, 3)
         base, fx, W, D = self.stencil(self.x[s, p])
-        for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+        for i, j, k in ti.ndrange(3, 3, 3):
             node, w, dpos, _ = self.stencil_node(base, fx, W, D, i, j, k)
             v += w * self.grid_v[node]
             C += (4.0 * self.inv_dx * self.inv_dx * w) * self.grid_v[node].outer_product(dpos)
@@ -311,7 +311,7 @@ class Simulator:
         x_bar = ti.Vector.zero(float, 3)
         scale = 4.0 * self.inv_dx * self.inv_dx
         base, fx, W, D = self.stencil(self.x[s, p])
-        for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+        for i, j, k in ti.ndrange(3, 3, 3):
             node, w, dpos, grad_w = self.stencil_node(base, fx, W, D, i, j, k)
             g_v = self.grid_v[node]
             self.grid_v_bar[node] += w * v_bar + scale * w * (C_bar @ dpos)
@@ -323,7 +323,7 @@ class Simulator:
         """Σ w v_i: the particle's velocity interpolated from the grid."""
         v = ti.Vector.zero(float, 3)
         base, fx, W, D = self.stencil(self.x[s, p])
-        for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+        for i, j, k in ti.ndrange(3, 3, 3):
             node, w, _, _ = self.stencil_node(base, fx, W, D, i, j, k)
             v += w * self.grid_v[node]
         return v
