@@ -86,11 +86,13 @@ def effector_sdf(p, kind: ti.i32, size, sdf: ti.template(), lower, spacing):
 
 @ti.func
 def effector_normal(p, kind: ti.i32, size, sdf: ti.template(), lower, spacing):
-    """Outward unit normal ∇φ/‖∇φ‖ by central differences (effector frame)."""
+    """Outward unit normal ∇φ/‖∇φ‖ by central differences (effector frame). The six evaluations run in
+    a loop, so that the signed distance is compiled once."""
     n = ti.Vector.zero(float, 3)
-    for a in ti.static(range(3)):
-        e = ti.Vector.unit(3, a, float) * NORMAL_STEP
-        n[a] = effector_sdf(p + e, kind, size, sdf, lower, spacing) - effector_sdf(p - e, kind, size, sdf, lower, spacing)
+    for q in range(6):
+        a, sign = q // 2, 1.0 - 2.0 * (q % 2)
+        e = ti.Vector([ti.select(a == b, sign * NORMAL_STEP, 0.0) for b in ti.static(range(3))])
+        n[a] += sign * effector_sdf(p + e, kind, size, sdf, lower, spacing)
     return n / ti.max(n.norm(), 1e-12)
 
 
