@@ -1,7 +1,8 @@
 """Differentiable 3D MLS-MPM (Hu et al. 2018) of an elastoplastic object on a table, pressed by a
 kinematic rigid effector (SPEC §4).
 
-One substep (state slot s → s + 1) is one kernel, :meth:`Simulator.advance`, of five loops:
+One substep (state slot s → s + 1) is two kernels, :meth:`Simulator.tabulate_contact` (loop 1) and
+:meth:`Simulator.advance` (loops 2–5):
 
 1. grid: clear, and tabulate effector distance, normal and velocity at the nodes;
 2. particles: effector contact geometry; trial deformation F_tr = (I + Δt C) F, its SVD, von Mises
@@ -13,9 +14,9 @@ One substep (state slot s → s + 1) is one kernel, :meth:`Simulator.advance`, o
    again, advection.
 
 The reverse mode is written by hand (Taichi's automatic one compiles slowly and adds every particle's
-contribution to a parameter into one shared number): per substep, :meth:`Simulator.restore` recomputes
-the grid of the forward pass from the substep's state and SVD, and :meth:`Simulator.adjoint` runs the
-five loops backwards in three. Gradients of the state live in two slots (of the substep being
+contribution to a parameter into one shared number): per substep, :meth:`Simulator.tabulate_contact`
+and :meth:`Simulator.restore` recompute the grid of the forward pass from the substep's state and SVD,
+and :meth:`Simulator.adjoint` runs loops 2–5 backwards in three. Gradients of the state live in two slots (of the substep being
 differentiated and of the one after it). Gradients of the material parameters are summed per particle
 and those of the friction coefficients per grid node, and reduced once per backward pass.
 
