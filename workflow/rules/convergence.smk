@@ -6,11 +6,16 @@ analysis (run with `--resources timing=1`)."""
 
 if "convergence" in ANALYSES:
     CONVERGENCE = ANALYSES["convergence"]
+    # minutes: work grows as (1/dx)⁴ (particles as (1/dx)³, substeps as 1/dx); ~6 min per motion at 3 mm
+    CONVERGENCE_MINUTES = 10 + sum(
+        6 * (3.0 / dx) ** 4 * len(CONVERGENCE["motions"]) for dx in CONVERGENCE["dx_mm"]
+    )
 
     rule convergence_table:
         input:
             code=library(
                 "convergence",
+                "bench",
                 "simulation",
                 "shapes",
                 "reconstruction/filling",
@@ -34,16 +39,17 @@ if "convergence" in ANALYSES:
         threads: 1
         resources:
             mem_mb=8000 if min(CONVERGENCE["dx_mm"]) < 3 else 4000,
-            runtime=10 + sum(
-                6 * (3.0 / dx) ** 4 * len(CONVERGENCE["motions"])
-                for dx in CONVERGENCE["dx_mm"]
-            ),
+            runtime=CONVERGENCE_MINUTES,
             gpu=1 if config.get("taichi_arch") == "cuda" else 0,
             timing=1,
         params:
             motions=CONVERGENCE["motions"],
             dx_mm=CONVERGENCE["dx_mm"],
-            simulator={k: v for k, v in simulator_params().items() if k not in ("dx", "max_particles")},
+            simulator={
+                k: v
+                for k, v in simulator_params().items()
+                if k not in ("dx", "max_particles")
+            },
         script:
             "../scripts/convergence.py"
 
