@@ -9,9 +9,11 @@ depend on dx, so every difference between two rows of one motion comes from the 
 Each dx runs in a child process of its own (a simulator's fields are sized by dx and particle count and
 are never freed within a process, and the peak memory is then the run's own). Per (motion, dx) the table
 gives the top surface's height-map distance (mm, :func:`dpsi.heightmap.heightmap_distance_mm`) to the
-finest dx, that of the initial particles (what the fill alone contributes), the dent depth (mm) under the
-effector, and the cost: particles, substeps per 0.01 s step, forward time (s, kernels already compiled)
-and peak memory (MiB).
+finest dx, that of the initial particles (what the fill alone contributes: the lattice's top layer lies
+up to one spacing below the lump's surface), the final height map's distance to the next finer dx's, the
+dent depth (mm) under the effector, and the
+cost: particles, substeps per 0.01 s step, forward time (s, kernels already compiled) and peak memory
+(MiB).
 
     python -m dpsi.convergence --dx 8 6 5 4 3 --out results/tables/convergence.csv
 """
@@ -60,7 +62,7 @@ TOLERANCE_MM = 300.0
 """Height-map distance (mm) to the finest run within which a dx counts as converged (issue 10)."""
 
 COLUMNS = ["motion", "dx_mm", "density", "particles", "substeps", "heightmap_to_finest_mm",
-           "initial_heightmap_to_finest_mm", "dent_depth_mm", "forward_s", "peak_mem_mib"]
+           "initial_heightmap_to_finest_mm", "heightmap_to_next_finer_mm", "dent_depth_mm", "forward_s", "peak_mem_mib"]
 
 
 def density_for(dx: float) -> float:
@@ -142,9 +144,9 @@ def simulate_dx_isolated(dx: float, motions=MOTIONS, seed: int = LUMP_SEED, simu
     """:func:`simulate_dx` in a child process of its own (see the module doc)."""
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "run.npz"
-        out = subprocess.run([sys.executable, "-m", "dpsi.convergence", "--child", str(path), "--dx", str(dx * 1000),
-                              "--seed", str(seed), "--motions", *motions, "--simulator", json.dumps(simulator or {})],
-                             capture_output=True, text=True)
+        command = [sys.executable, "-m", "dpsi.convergence", "--child", str(path), "--dx", str(dx * 1000),
+                   "--seed", str(seed), "--motions", *motions, "--simulator", json.dumps(simulator or {})]
+        out = subprocess.run(command, capture_output=True, text=True)
         if out.returncode != 0:
             raise RuntimeError(f"resolution study at dx={dx * 1000:g} mm failed:\n{out.stderr[-3000:]}")
         return _load_run(path)
@@ -179,12 +181,14 @@ def convergence_table(runs: list[dict], motions=MOTIONS, seed: int = LUMP_SEED) 
                               for p in (run["particles"], run["finals"][motion]))
             maps.append((initial, final))
         point = poke_point(setup.trajectories[motion], setup.start)
-        for run, (initial, final) in zip(runs, maps):
+        for k, (run, (initial, final)) in enumerate(zip(runs, maps)):
+            finer = maps[k + 1] if k + 1 < len(maps) else None
             rows.append(dict(
                 motion=motion, dx_mm=round(run["dx"] * 1000, 6), density=run["density"],
                 particles=len(run["particles"]), substeps=run["substeps"],
                 heightmap_to_finest_mm=heightmap_distance_mm(final, maps[-1][1]),
                 initial_heightmap_to_finest_mm=heightmap_distance_mm(initial, maps[-1][0]),
+                heightmap_to_next_finer_mm=heightmap_distance_mm(final, finer[1]) if finer else np.nan,
                 dent_depth_mm=dent_depth_mm(initial, final, setup.centre_xy, point),
                 forward_s=run["forward_s"][motion], peak_mem_mib=run["peak_mem_mib"]))
     return pd.DataFrame(rows, columns=COLUMNS)
@@ -226,7 +230,8 @@ def main(argv=None) -> None:
     parser.add_argument("--motions", nargs="+", default=list(MOTIONS), help="motions (round effector)")
     parser.add_argument("--dx", nargs="+", type=float, default=list(DX_MM), help="grid cells in mm")
     parser.add_argument("--seed", type=int, default=LUMP_SEED, help="seed of the lump and trajectories")
-    parser.add_argument("--simulator", default="{}", help='further SimulatorConfig settings as JSON, e.g. {"arch": "cpu"}')
+    parser.add_argument("--simulator", default="{}",
+                        help='further SimulatorConfig settings as JSON, e.g. {"arch": "cpu", "cfl": 0.7}')
     parser.add_argument("--out", default="results/tables/convergence.csv",
                         help="CSV to write (with .md and .tex beside it)")
     parser.add_argument("--child", help=argparse.SUPPRESS)
