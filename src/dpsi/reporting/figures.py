@@ -216,5 +216,37 @@ def plot_particles(datapoint: Datapoint, final_particles, png_path: str | Path, 
     save(fig, png_path, pdf_path)
 
 
+def plot_recovery(table: pd.DataFrame, png_path: str | Path, pdf_path: str | Path) -> None:
+    """Identifiability ladder figure: relative error (%) of each identified parameter, one panel per
+    (level, rung), bars per loss (median over datasets and seeds) and a dot per run. ``table`` has the
+    columns of :data:`dpsi.identifiability.COLUMNS`."""
+    missing = [c for c in ("rung", "level", "loss", "parameter", "rel_error") if c not in table.columns]
+    if missing or table.empty:
+        raise ValueError(f"ladder table is empty or lacks column(s) {missing}: nothing to plot")
+    panels = sorted(set(zip(table["level"], table["rung"])))
+    losses = list(dict.fromkeys(table["loss"]))
+    fig = new_figure(4.2 * len(panels), 3.4)
+    axes = np.atleast_1d(fig.subplots(1, len(panels), sharey=True))
+    width = 0.8 / len(losses)
+    for ax, (level, rung) in zip(axes, panels):
+        rows = table[(table["level"] == level) & (table["rung"] == rung)]
+        names = [n for n in IDENTIFIED[level] if n in set(rows["parameter"])]
+        for k, loss in enumerate(losses):
+            mine = rows[rows["loss"] == loss]
+            x = np.arange(len(names)) + (k - (len(losses) - 1) / 2) * width
+            errors = [100 * mine.loc[mine["parameter"] == n, "rel_error"] for n in names]
+            ax.bar(x, [e.median() if len(e) else np.nan for e in errors], width, label=loss, color=f"C{k}")
+            for xi, e in zip(x, errors):
+                ax.plot(np.full(len(e), xi), e, "k.", markersize=3)
+        ax.set_xticks(np.arange(len(names)), [PARAMETER_AXES[n][0].split(" (")[0] for n in names])
+        ax.set_yscale("symlog", linthresh=10)
+        ax.axhline(10, color="grey", lw=0.8, ls="--")
+        ax.set_title(f"level {level}, {rung}")
+    axes[0].set_ylabel("relative error (%)")
+    axes[-1].legend(fontsize=7)
+    fig.suptitle("Identifiability ladder: recovery error per parameter (dashed: 10 %)")
+    save(fig, png_path, pdf_path)
+
+
 __all__ = ["DPI", "METRIC_LABELS", "PARAMETER_AXES", "new_figure", "save", "plot_runs", "plot_heightmaps",
-           "plot_particles"]
+           "plot_particles", "plot_recovery"]
