@@ -6,7 +6,8 @@ analysis (run with `--resources timing=1`)."""
 
 if "convergence" in ANALYSES:
     CONVERGENCE = ANALYSES["convergence"]
-    # minutes: work grows as (1/dx)⁴ (particles as (1/dx)³, substeps as 1/dx); ~6 min per motion at 3 mm
+    # minutes: work grows as (1/dx)⁴ (particles as (1/dx)³, substeps as 1/dx); ~6 min per motion at 3 mm;
+    # memory: 3 GiB at 3 mm, ~12 GiB at 2 mm (the per-substep fields, docs/benchmarks.md)
     CONVERGENCE_MINUTES = 10 + sum(
         6 * (3.0 / dx) ** 4 * len(CONVERGENCE["motions"]) for dx in CONVERGENCE["dx_mm"]
     )
@@ -38,7 +39,7 @@ if "convergence" in ANALYSES:
             "../envs/dpsi.yaml"
         threads: 1
         resources:
-            mem_mb=8000 if min(CONVERGENCE["dx_mm"]) < 3 else 4000,
+            mem_mb=16000 if min(CONVERGENCE["dx_mm"]) < 3 else 4000,
             runtime=CONVERGENCE_MINUTES,
             gpu=1 if config.get("taichi_arch") == "cuda" else 0,
             timing=1,
