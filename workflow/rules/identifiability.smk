@@ -1,7 +1,7 @@
 """The identifiability ladder (dpsi.identifiability): identification runs on three rungs of the twin that
 share datapoints and differ in how the targets come about: R0 same model, R1 reconstructed at the
 identification resolution, R2 the main pipeline's finer twin. `snakemake identifiability` builds the ladder of
-the config; `tables` and `figures` include the rungs listed in `tables_rungs` (R0 in the quick default).
+the config; `tables` and `figures` include the rungs and losses listed in `in_tables` (R0 in the quick default).
 """
 
 
@@ -101,10 +101,12 @@ if "identifiability" in ANALYSES:
     rule identifiability_results:
         input:
             summaries=lambda w: run_files(
-                ladder_runs(LADDER_TABLES[w.ladder]), "summary.json"
+                ladder_runs(*LADDER_TABLES[w.ladder]), "summary.json"
             ),
-            logs=lambda w: run_files(ladder_runs(LADDER_TABLES[w.ladder]), "log.csv"),
-            references=lambda w: ladder_references(ladder_runs(LADDER_TABLES[w.ladder])),
+            logs=lambda w: run_files(ladder_runs(*LADDER_TABLES[w.ladder]), "log.csv"),
+            references=lambda w: ladder_references(
+                ladder_runs(*LADDER_TABLES[w.ladder])
+            ),
             code=library("identifiability", "reporting"),
         output:
             table=report(
@@ -130,10 +132,10 @@ if "identifiability" in ANALYSES:
             mem_mb=1000,
             runtime=5,
         params:
-            labels=lambda w: list(ladder_runs(LADDER_TABLES[w.ladder]).values()),
+            labels=lambda w: list(ladder_runs(*LADDER_TABLES[w.ladder]).values()),
             references=lambda w: {
                 LADDER_REFERENCE.format(**labels): labels
-                for labels in ladder_runs(LADDER_TABLES[w.ladder]).values()
+                for labels in ladder_runs(*LADDER_TABLES[w.ladder]).values()
             },
         script:
             "../scripts/identifiability.py"

@@ -20,13 +20,13 @@ if "identifiability" in ANALYSES:
             return prepared(ids)
         return [f"{LADDER_ROOT}/{rung}/prepared/{i}.npz" for i in ids]
 
-    def ladder_runs(rungs):
-        """Folder → labels of every ladder run on `rungs`."""
+    def ladder_runs(rungs, losses):
+        """Folder → labels of every ladder run on `rungs` with `losses`."""
         runs = {}
         for rung, level, loss, dataset, seed in itertools.product(
             rungs,
             LADDER["levels"],
-            LADDER["losses"],
+            losses,
             LADDER["datasets"],
             LADDER["seeds"],
         ):
@@ -41,10 +41,17 @@ if "identifiability" in ANALYSES:
     def ladder_references(runs):
         return sorted({LADDER_REFERENCE.format(**labels) for labels in runs.values()})
 
-    LADDER_TABLES = {"identifiability": LADDER["rungs"]}
-    TABLES_RUNGS = LADDER.get("tables_rungs", LADDER["rungs"])
-    if list(TABLES_RUNGS) != list(LADDER["rungs"]):
-        LADDER_TABLES["identifiability_" + "-".join(TABLES_RUNGS)] = TABLES_RUNGS
+    LADDER_TABLES = {"identifiability": (LADDER["rungs"], LADDER["losses"])}
+    IN_TABLES = {
+        "rungs": LADDER["rungs"],
+        "losses": LADDER["losses"],
+        **LADDER.get("in_tables", {}),
+    }
+    if (IN_TABLES["rungs"], IN_TABLES["losses"]) != LADDER_TABLES["identifiability"]:
+        LADDER_TABLES["identifiability_" + "-".join(IN_TABLES["rungs"])] = (
+            IN_TABLES["rungs"],
+            IN_TABLES["losses"],
+        )
 
     def ladder_outputs(name):
         return [f"results/tables/{name}.{s}" for s in ("csv", "md", "tex")] + [
