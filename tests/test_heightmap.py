@@ -73,3 +73,39 @@ def test_bad_input_is_named(kwargs, message):
 def test_distance_shape_mismatch():
     with pytest.raises(ValueError, match="shape"):
         heightmap_distance_mm(np.zeros((32, 32)), np.zeros((16, 16)))
+
+
+def box_particles(density, lo=(-0.03, -0.02, 0.0), hi=(0.03, 0.025, 0.03)):
+    """A filled box (m) on the table, particles on the fill lattice of ``density`` particles/m³."""
+    a = density ** (-1 / 3)
+    axes = [np.arange(lo[k] + a / 2, hi[k], a) for k in range(3)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3), a
+
+
+@pytest.mark.parametrize("density", [1e7, 1.5e7, 4e7])
+def test_a_filled_box_has_no_empty_cell_inside_its_outline(density):
+    particles, a = box_particles(density)
+    hm = height_map(particles, (0.0, 0.0), particle_size=a)
+    xs = -0.055 + (np.arange(32) + 0.5) * CELL
+    inside_x = (xs > particles[:, 0].min() - a / 2 + CELL / 2) & (xs < particles[:, 0].max() + a / 2 - CELL / 2)
+    inside_y = (xs > particles[:, 1].min() - a / 2 + CELL / 2) & (xs < particles[:, 1].max() + a / 2 - CELL / 2)
+    interior = hm[np.ix_(inside_x, inside_y)]
+    assert interior.size > 100
+    top = particles[:, 2].max() + a / 2  # the top of the highest particle cubes: the box's surface
+    np.testing.assert_allclose(interior, top)
+    # as points, the same particles leave whole rows of empty cells where the lattice is sparser than the map
+    if a > CELL:
+        assert (height_map(particles, (0.0, 0.0))[np.ix_(inside_x, inside_y)] == 0.0).any()
+
+
+def test_a_particle_covers_exactly_the_cells_its_footprint_overlaps():
+    centre = cell_centre(10, 20)
+    hm = height_map(np.array([[centre[0] + 0.4 * CELL, centre[1], 0.01]]), (0.0, 0.0), particle_size=1.5 * CELL)
+    # footprint x ∈ [cell 10 + 0.15, cell 11 + 0.65): cells 10, 11; y ∈ [cell 20 − 0.25, cell 20 + 1.25): 19, 20, 21
+    assert sorted(map(tuple, np.argwhere(hm > 0))) == [(10, 19), (10, 20), (10, 21), (11, 19), (11, 20), (11, 21)]
+    assert hm[10, 20] == pytest.approx(0.01 + 0.75 * CELL)
+
+
+def test_negative_particle_size_is_named():
+    with pytest.raises(ValueError, match="particle size"):
+        height_map(np.zeros((1, 3)), (0.0, 0.0), particle_size=-0.001)

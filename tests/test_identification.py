@@ -13,7 +13,8 @@ import pytest
 
 from dpsi.datapoint import Datapoint
 from dpsi.heightmap import height_map
-from dpsi.identification import COLUMNS, LOG_FILE, STATE_FILE, IdentificationError, identify
+from dpsi import identification
+from dpsi.identification import COLUMNS, LOG_FILE, STATE_FILE, IdentificationError, identify, inputs_key
 from dpsi.motions import Trajectory
 from dpsi.parameters import HAND_PICKED, LEVEL1_FIXED, Parameters
 from dpsi.reconstruction.filling import pcd_target
@@ -117,6 +118,60 @@ def test_resumed_run_equals_uninterrupted_run(simulator, problem, tmp_path):
         identify(tmp_path / "parts", iterations=4, **{**run, "loss": "prt_cd"})
     with pytest.raises(IdentificationError, match="already has 4 iterations"):
         identify(tmp_path / "parts", iterations=3, **run)
+
+
+def _shifted(dp: Datapoint, **change) -> Datapoint:
+    return dataclasses.replace(dp, **change)
+
+
+@pytest.mark.parametrize("change", [
+    lambda dp: _shifted(dp, prt_target=dp.prt_target + [0.0, 0.0, 1e-6]),
+    lambda dp: _shifted(dp, pcd_target=dp.pcd_target[:-1]),
+    lambda dp: _shifted(dp, heightmap=dp.heightmap + 1e-9),
+    lambda dp: _shifted(dp, effector="rectangle"),
+    lambda dp: _shifted(dp, particle_volume=dp.particle_volume * 2),
+    lambda dp: _shifted(dp, particles=dp.particles + [1e-9, 0.0, 0.0]),
+    lambda dp: _shifted(dp, trajectory=poke(0.009)),
+    lambda dp: _shifted(dp, start=dp.start + [0.0, 0.0, 1e-4]),
+    lambda dp: _shifted(dp, table_z=1e-4),
+])
+def test_inputs_key_covers_every_datapoint_field(problem, change):
+    training, validation_set = problem
+    key = inputs_key(training, validation_set, CONFIG)
+    assert inputs_key([dataclasses.replace(dp) for dp in training], validation_set, CONFIG) == key
+    assert inputs_key([change(training[0]), training[1]], validation_set, CONFIG) != key
+    assert inputs_key(training, [change(validation_set[0])], CONFIG) != key
+
+
+def test_inputs_key_covers_simulator_settings_and_library_code(problem, monkeypatch):
+    key = inputs_key(*problem, CONFIG)
+    assert inputs_key(*problem, dataclasses.replace(CONFIG, cfl=0.6)) != key
+    monkeypatch.setattr(identification, "library_checksum", lambda: "edited losses.py")
+    assert inputs_key(*problem, CONFIG) != key
+
+
+def test_state_of_other_inputs_or_code_is_not_resumed(simulator, problem, tmp_path, monkeypatch):
+    """A state left by other targets, another effector or other library code is refused, or (the
+    workflow's mode) discarded: the run then equals a fresh run of the new inputs."""
+    training, validation_set = problem
+    run = dict(level=1, loss="prt_cd", validation_set=validation_set, iterations=1, simulator=simulator)
+    identify(tmp_path / "run", training=training, progress=io.StringIO(), **run)
+    first_loss = pd.read_csv(tmp_path / "run" / LOG_FILE).train_loss_mm[0]
+    moved = [_shifted(training[0], prt_target=training[0].prt_target + [0.0, 0.0, 0.002]), training[1]]
+    for other in (moved, [_shifted(training[0], effector="cylinder"), training[1]]):
+        with pytest.raises(IdentificationError, match="other inputs"):
+            identify(tmp_path / "run", training=other, progress=io.StringIO(), **run)
+    with monkeypatch.context() as patch:
+        patch.setattr(identification, "library_checksum", lambda: "edited losses.py")
+        with pytest.raises(IdentificationError, match="dpsi library code"):
+            identify(tmp_path / "run", training=training, progress=io.StringIO(), **run)
+
+    restarted = identify(tmp_path / "run", training=moved, progress=io.StringIO(), restart_if_different=True, **run)
+    fresh = identify(tmp_path / "fresh", training=moved, progress=io.StringIO(), **run)
+    assert _without_wall_time(tmp_path / "run") == _without_wall_time(tmp_path / "fresh")
+    assert restarted["final"] == fresh["final"]
+    assert restarted["best"]["validation"] == fresh["best"]["validation"]
+    assert pd.read_csv(tmp_path / "run" / LOG_FILE).train_loss_mm[0] > first_loss + 0.5  # the moved target
 
 
 def _failing(*args, **kwargs):

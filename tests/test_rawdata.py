@@ -67,12 +67,36 @@ def _corrupt(path, text):
     return path
 
 
+def _truncate(path, keep=0.5):
+    """Cut a file to ``keep`` of its size (an interrupted copy)."""
+    data = path.read_bytes()
+    assert b"binary_little_endian" in data[:200]
+    path.write_bytes(data[:int(len(data) * keep)])
+    return path
+
+
+def _nan_vertex(path):
+    lines = path.read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("v "))
+    lines[first] = "v nan 0 0"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 BAD = {
     "missing transform": (lambda r: (r / "dp1/before/view_1.transform.txt").unlink() or r / "dp1/before/view_1.ply",
                           "transform"),
     "empty cloud": (lambda r: _corrupt(r / "dp1/before/view_2.ply", ""), "empty"),
-    "malformed cloud": (lambda r: _corrupt(r / "dp1/before/view_0.ply", "ply\nformat nonsense\n"), "no points"),
-    "malformed npy": (lambda r: _corrupt(r / "dp1/after_fused.npy", "not an array"), "npy"),
+    "malformed cloud": (lambda r: _corrupt(r / "dp1/before/view_0.ply", "ply\nformat nonsense\n"), "end_header"),
+    "truncated binary cloud": (lambda r: _truncate(r / "dp1/before/view_1.ply"), "truncated PLY file"),
+    "truncated ASCII cloud": (lambda r: _corrupt(r / "dp1/before/view_0.ply", "ply\nformat ascii 1.0\n"
+                                                 "element vertex 3\nproperty float x\nproperty float y\n"
+                                                 "property float z\nend_header\n0 0 0\n1 0 0\n"), "declares 3 rows"),
+    "truncated binary mesh": (lambda r: _truncate(r / "dp2/after_mesh.ply", keep=0.9), "truncated PLY file"),
+    "NaN vertex in an OBJ mesh": (lambda r: _nan_vertex(r / "dp2/before_mesh.obj"), r"line \d+: vertex 'nan"),
+    "pickled npy": (lambda r: np.save(r / "dp1/after_fused.npy", np.array([{}], dtype=object), allow_pickle=True)
+                    or r / "dp1/after_fused.npy", "not a numeric .npy array"),
+    "malformed npy": (lambda r: _corrupt(r / "dp1/after_fused.npy", "not an array"), "not a numeric .npy array"),
     "non-rigid transform": (lambda r: _corrupt(r / "dp1/before/view_1.transform.txt",
                                                "2 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n"), "not rigid"),
     "reflection": (lambda r: _corrupt(r / "dp1/before/view_1.transform.txt",

@@ -41,6 +41,69 @@ def test_dataset_the_datapoints_cannot_form_fails_at_start_up(tmp_path):
     assert "poking-2 with cylinder" in run.stdout + run.stderr
 
 
+def _raw_project(tmp_path, train_id="train-0", motion="poking-2"):
+    """A project folder (tmp_path/outer/project) whose config reads the raw dataset `probe` with a train
+    and a validation datapoint of level 1."""
+    project = tmp_path / "outer" / "project"
+    raw = project / "raw" / "probe"
+    raw.mkdir(parents=True)
+    rows = [dict(id=train_id, motion=motion, effector="round", level=1, role="train", material="clay"),
+            dict(id="validation-0", motion="poking-2", effector="round", level=1, role="validation", material="clay")]
+    pd.DataFrame(rows).to_csv(raw / "datapoints.csv", index=False)
+    (raw / "validation-0").mkdir()
+    config = yaml.safe_load(TINY.read_text())
+    del config["twin"], config["analyses"]
+    config["dataset"] = "probe"
+    config["identification"].update(levels=[1], datasets=["1-round"])
+    path = project / "probe.yaml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return project, path
+
+
+def _files(folder):
+    return {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def test_datapoint_id_with_a_path_is_refused_before_any_file_is_opened(tmp_path):
+    """An id climbing out of the project would make Snakemake open (truncate) a log file outside it: here
+    logs/probe/trajectory/<id>.log is tmp_path/outer/victim/important.log, and raw/probe/<id> (the job's
+    input) an existing folder tmp_path/victim/important."""
+    victim = tmp_path / "outer" / "victim" / "important.log"
+    victim.parent.mkdir(parents=True)
+    victim.write_text("precious\n")
+    (tmp_path / "victim" / "important").mkdir(parents=True)
+    (tmp_path / "victim" / "important" / "notes.txt").write_text("more\n")
+    project, config = _raw_project(tmp_path, train_id="../../../../victim/important")
+    outside = {p: b for p, b in _files(tmp_path).items() if project not in p.parents}
+    run = snakemake(project, "-j1", "-k", "--until", "trajectory", "--", "tables", config=config)
+    assert victim.read_text() == "precious\n"
+    assert {p: b for p, b in _files(tmp_path).items() if project not in p.parents} == outside
+    assert run.returncode != 0
+    output = run.stdout + run.stderr
+    assert "datapoints.csv: line 2: id '../../../../victim/important' must be letters, digits" in output
+    assert "no path separators" in output
+
+
+def test_unknown_motion_in_the_table_is_named_at_start_up(tmp_path):
+    project, config = _raw_project(tmp_path, motion="poking-9")
+    run = snakemake(project, "-n", "tables", config=config)
+    assert run.returncode != 0
+    output = run.stdout + run.stderr
+    assert "datapoints.csv: line 2: unknown motion 'poking-9'" in output and "lacks train datapoints" not in output
+
+
+def test_failing_raw_data_job_writes_its_error_to_its_log(tmp_path):
+    """The raw dataset lacks the planner trajectory of poking-2: each trajectory job's log holds the
+    message naming the file, and the traceback."""
+    project, config = _raw_project(tmp_path)
+    (project / "raw" / "probe" / "train-0").mkdir()
+    run = snakemake(project, "-j1", "-k", "--until", "trajectory", "--", "tables", config=config)
+    assert run.returncode != 0
+    for datapoint in ("train-0", "validation-0"):
+        log = (project / "logs" / "probe" / "trajectory" / f"{datapoint}.log").read_text()
+        assert "FAILED: " in log and "trajectories/poking-2.csv" in log and "Traceback" in log, log
+
+
 def test_lint_has_no_findings(tmp_path):
     run = snakemake(tmp_path, "--lint")
     assert run.returncode == 0, run.stdout + run.stderr

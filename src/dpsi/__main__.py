@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -21,14 +22,15 @@ from dpsi.effectors import BUILT_IN, by_name
 from dpsi.identification import evaluate, identify
 from dpsi.losses import LOSSES
 from dpsi.motions import MOTIONS, get_motion, trajectory
-from dpsi.parameters import HAND_PICKED, IDENTIFIED, NAMES, UNITS, Parameters, random_initial
+from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, NAMES, UNITS, Parameters, random_initial
 from dpsi.pointclouds import read_mesh
-from dpsi.prepare import fill_particles, footprint_centre, reconstruct_state, targets
+from dpsi.prepare import density_holding, fill_particles, footprint_centre, reconstruct_state, targets
 from dpsi.rawdata import StateSource
 from dpsi.simulation import SimulationError, Simulator, SimulatorConfig
 
 DENSITY = 4e7
 """Default particle density (particles/m³), the lowest of SPEC §3.3."""
+MAX_PARTICLES = SimulatorConfig().max_particles
 
 
 def _source(path: str) -> StateSource:
@@ -43,19 +45,26 @@ def _source(path: str) -> StateSource:
 
 
 def _shapes_datapoint(before: str, after: str, motion: str, effector: str, density: float,
-                     table_z: float | None = None) -> Datapoint:
+                      table_z: float | None, config: SimulatorConfig) -> Datapoint:
     """A datapoint from a before and an after shape: the table is the plane z = ``table_z`` (m), by default
     through the before shape's lowest point; the tip starts at the top centre of the before shape's
-    bounding box and follows the resampled ``motion``."""
+    bounding box and follows the resampled ``motion``. Raises naming the file if the before shape does not
+    fit the simulator of ``config`` (its box, or its particle capacity at ``density``), or holds fewer
+    particles than the after shape's PCD target has points."""
     get_motion(motion)
     by_name(effector)
-    _, before_mesh = reconstruct_state(_source(before), None, 0.0, before)
-    after_points, after_mesh = reconstruct_state(_source(after), None, 0.0, after)
+    _, before_mesh = reconstruct_state(_source(before), None, 0.0, before, config)
+    after_points, after_mesh = reconstruct_state(_source(after), None, 0.0, after, config)
     lo, hi = before_mesh.get_min_bound(), before_mesh.get_max_bound()
     table_z = float(lo[2]) if table_z is None else table_z
-    particles = fill_particles(before_mesh, density, before)
+    particles = fill_particles(before_mesh, density, before, config)
     centre = footprint_centre(particles)
     prt, pcd, heights = targets(after_mesh, after_points, len(particles), density, centre, table_z)
+    if len(pcd) > len(particles):  # checked before simulating: the validation metrics include its EMD
+        raise ValueError(f"{before}: at --density {density:.3g} the object has {len(particles)} particles, fewer "
+                         f"than the {len(pcd)} points of the PCD target of {after} (the earth mover's distance "
+                         f"needs no more target points than particles); use --density "
+                         f"{density_holding(before_mesh, len(pcd), density):.3g} or more")
     start = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2]]
     return Datapoint(Path(before).stem, motion, effector, particles, 1.0 / density, trajectory(motion), start,
                      table_z, pcd, prt, heights, centre)
@@ -71,6 +80,16 @@ def _param(text: str) -> tuple[str, float]:
         return name, float(value)
     except ValueError:
         raise argparse.ArgumentTypeError(f"value of {name} must be a number, got {value!r}") from None
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
 
 
 def _positive(text: str) -> float:
@@ -109,8 +128,10 @@ def _shape_options(parser: argparse.ArgumentParser, many: bool) -> None:
                         help="end-effector shape")
     parser.add_argument("--density", type=_positive, default=DENSITY, metavar="D",
                         help=f"particle density in particles/m³ (default {DENSITY:g})")
-    parser.add_argument("--table-z", type=float, metavar="Z",
+    parser.add_argument("--table-z", type=_finite, metavar="Z",
                         help="table height in m (default: the before shape's lowest point)")
+    parser.add_argument("--max-particles", type=_at_least(1), default=MAX_PARTICLES, metavar="N",
+                        help=f"particle capacity of the simulator (default {MAX_PARTICLES}); more needs more memory")
 
 
 def _param_help(what: str) -> str:
@@ -169,8 +190,9 @@ def _one_each(parser, args, name: str) -> list[str]:
 
 
 def _simulate(args) -> list[str]:
-    dp = _shapes_datapoint(args.before, args.after, args.motion, args.effector, args.density, args.table_z)
-    metrics = evaluate(Simulator(SimulatorConfig()), dp, args.params)
+    config = SimulatorConfig(max_particles=args.max_particles)
+    dp = _shapes_datapoint(args.before, args.after, args.motion, args.effector, args.density, args.table_z, config)
+    metrics = evaluate(Simulator(config), dp, args.params)
     result = {"particles": len(dp.particles), **metrics, "params": args.params.as_dict()}
     if args.json:
         return [json.dumps(result)]
@@ -181,13 +203,19 @@ def _simulate(args) -> list[str]:
 def _identify(parser, args) -> list[str]:
     if len(args.after) != len(args.before):
         parser.error(f"argument --after: give one per --before ({len(args.before)}), got {len(args.after)}")
+    fixed = sorted({name for name, _ in args.param} & set(LEVEL1_FIXED)) if args.level == 1 else []
+    if fixed:
+        parser.error(f"argument --param: level 1 keeps {', '.join(fixed)} fixed at {LEVEL1_FIXED}; "
+                     "drop the option, or identify the frictions with --level 2")
     base = HAND_PICKED if args.initial == "hand-picked" else random_initial(args.seed, args.level)
     initial = _params(parser, base, args.param)
+    config = SimulatorConfig(max_particles=args.max_particles)
     pairs = zip(args.before, args.after, _one_each(parser, args, "motion"), _one_each(parser, args, "effector"))
-    training = [_shapes_datapoint(*pair, args.density, args.table_z) for pair in pairs]
-    validation_set = [_shapes_datapoint(*quad, args.density, args.table_z) for quad in args.validate] or training
+    training = [_shapes_datapoint(*pair, args.density, args.table_z, config) for pair in pairs]
+    validation_set = ([_shapes_datapoint(*quad, args.density, args.table_z, config) for quad in args.validate]
+                      or training)
     summary = identify(args.out, args.level, args.loss, training, validation_set, args.seed, args.iterations,
-                       initial, simulator=Simulator(SimulatorConfig()))
+                       initial, simulator=Simulator(config))
     best = summary["best"]
     head = ("no iteration has a finite validation height-map distance; final parameters:" if best is None else
             f"best iteration {best['iteration']} (validation height map {best['validation']['heightmap_mm']:.1f} mm):")

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .effectors import Effector, by_name
+from .losses import HeightMapTarget
 from .motions import Trajectory
 from .pointclouds import atomic_output
 from .simulation import Scene
@@ -36,6 +37,15 @@ class Datapoint:
     prt_target: np.ndarray
     heightmap: np.ndarray
     centre_xy: np.ndarray
+
+    @property
+    def particle_size(self) -> float:
+        """Side (m) of the cube each particle stands for: the fill lattice spacing."""
+        return float(self.particle_volume) ** (1.0 / 3.0)
+
+    def heightmap_target(self) -> HeightMapTarget:
+        """The captured after height map as a loss target, with this datapoint's particle cubes."""
+        return HeightMapTarget(self.heightmap, self.centre_xy, self.table_z, self.particle_size)
 
     def scene(self, effector: Effector | None = None) -> Scene:
         """The simulator scene; ``effector`` overrides the built-in one named by ``self.effector``."""

@@ -4,6 +4,12 @@ A height map covers a ``size`` × ``size`` square (m) centred at ``centre_xy`` a
 ``cells`` × ``cells`` half-open cells; ``map[i, j]`` is cell ``i`` along x and ``j`` along y,
 both counted from the square's low corner. Each cell holds the highest z (m) of the points in
 it; points outside the square are ignored.
+
+Points may stand for particles: cubes of side ``particle_size`` (m, the lattice spacing
+density^(-1/3) of a filled object) centred at the points. A particle then covers every cell its square
+footprint overlaps, at the height of its cube's top (z + particle_size / 2), so that a filled object
+leaves no empty cell inside its outline at any density (SPEC §3.5). ``particle_size`` 0 (the default)
+treats points as points: a fused cloud, or surface samples.
 """
 
 from __future__ import annotations
@@ -20,10 +26,30 @@ TABLE_HEIGHT = 0.0
 """Default value (m) of empty cells: the table plane z = 0."""
 
 
-def height_map_owners(points, centre_xy, size: float = SIZE, cells: int = CELLS) -> np.ndarray:
+def _covered_cells(points: np.ndarray, corner: np.ndarray, cell: float, cells: int,
+                   particle_size: float) -> tuple[np.ndarray, np.ndarray]:
+    """(point index, flat cell index) of every map cell a point's footprint overlaps: the one cell it
+    falls in for ``particle_size`` 0, else every cell its square of side ``particle_size`` overlaps."""
+    lo = (points[:, :2] - corner - particle_size / 2) / cell
+    first = np.floor(lo).astype(np.int64)
+    last = np.maximum(first, np.ceil((points[:, :2] - corner + particle_size / 2) / cell).astype(np.int64) - 1)
+    span = int(np.ceil(particle_size / cell)) + 1 if particle_size > 0 else 1
+    index, flat = [], []
+    for di in range(span):
+        for dj in range(span):
+            ij = first + (di, dj)
+            keep = np.flatnonzero(np.all((ij <= last) & (ij >= 0) & (ij < cells), axis=1))
+            index.append(keep)
+            flat.append(ij[keep, 0] * cells + ij[keep, 1])
+    return np.concatenate(index), np.concatenate(flat)
+
+
+def height_map_owners(points, centre_xy, size: float = SIZE, cells: int = CELLS,
+                      particle_size: float = 0.0) -> np.ndarray:
     """Index of the point holding each cell's highest z, shape (cells, cells); -1 for empty cells.
 
-    ``points`` is (n, 3) in m, ``centre_xy`` (2,) in m, ``size`` in m.
+    ``points`` is (n, 3) in m, ``centre_xy`` (2,) in m, ``size`` and ``particle_size`` in m (see the
+    module doc). A particle may hold several cells.
     """
     points = np.asarray(points, dtype=float)
     centre_xy = np.asarray(centre_xy, dtype=float)
@@ -35,29 +61,31 @@ def height_map_owners(points, centre_xy, size: float = SIZE, cells: int = CELLS)
         raise ValueError(f"height-map size must be positive, got {size} m")
     if int(cells) != cells or cells < 1:
         raise ValueError(f"height-map cells must be a positive integer, got {cells}")
+    if not (np.isfinite(particle_size) and particle_size >= 0):
+        raise ValueError(f"particle size must be a non-negative length in m, got {particle_size}")
     cells = int(cells)
 
-    ij = np.floor((points[:, :2] - (centre_xy - size / 2)) * (cells / size))
-    inside = np.flatnonzero(np.all((ij >= 0) & (ij < cells), axis=1))
-    flat = (ij[inside, 0] * cells + ij[inside, 1]).astype(np.int64)
-    order = np.lexsort((points[inside, 2], flat))  # by cell, then by z ascending
+    index, flat = _covered_cells(points, centre_xy - size / 2, size / cells, cells, particle_size)
+    order = np.lexsort((points[index, 2], flat))  # by cell, then by z ascending
     flat_sorted = flat[order]
     last = np.ones(len(flat_sorted), dtype=bool)  # marks the highest z of each cell
     last[:-1] = flat_sorted[1:] != flat_sorted[:-1]
     owners = np.full(cells * cells, -1, dtype=np.int64)
-    owners[flat_sorted[last]] = inside[order[last]]
+    owners[flat_sorted[last]] = index[order[last]]
     return owners.reshape(cells, cells)
 
 
-def height_map(points, centre_xy, size: float = SIZE, cells: int = CELLS, floor: float | None = None) -> np.ndarray:
+def height_map(points, centre_xy, size: float = SIZE, cells: int = CELLS, floor: float | None = None,
+               particle_size: float = 0.0) -> np.ndarray:
     """Height map (cells, cells) in m of ``points`` (n, 3) in m.
 
-    Empty cells hold ``floor`` (m), by default :data:`TABLE_HEIGHT` (0.0, the table plane).
+    Empty cells hold ``floor`` (m), by default :data:`TABLE_HEIGHT` (0.0, the table plane); with
+    ``particle_size`` (m) > 0 each point is a particle cube covering its footprint up to its top.
     """
-    owners = height_map_owners(points, centre_xy, size, cells)
+    owners = height_map_owners(points, centre_xy, size, cells, particle_size)
     heights = np.full(owners.shape, TABLE_HEIGHT if floor is None else float(floor))
     filled = owners >= 0
-    heights[filled] = np.asarray(points, dtype=float)[owners[filled], 2]
+    heights[filled] = np.asarray(points, dtype=float)[owners[filled], 2] + particle_size / 2
     return heights
 
 

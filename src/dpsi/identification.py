@@ -16,11 +16,16 @@ will be, so the run stops early and says so in its summary.
 Output folder: ``log.csv`` (the rows), ``summary.json`` (best row, its parameters, relative errors
 against a known truth) and ``state.json`` (Adam state + rows, rewritten atomically after every row).
 Running again with the same arguments resumes from the last completed row and gives the same
-result as an uninterrupted run; asking for more iterations than a finished run had extends it.
+result as an uninterrupted run; asking for more iterations than a finished run had extends it. The state
+is keyed on everything that determines the result (the run's settings, a hash of the datapoints' arrays
+and names, the simulator settings and the dpsi library's source code), so a state left by other inputs
+or other code is never resumed.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import json
 import math
 import sys
@@ -32,14 +37,15 @@ import numpy as np
 import pandas as pd
 
 from dpsi.datapoint import Datapoint
-from dpsi.losses import LOSSES, VALIDATION_METRICS, HeightMapTarget, Targets, loss_by_name, validation_metrics
+from dpsi.losses import LOSSES, VALIDATION_METRICS, Targets, loss_by_name, validation_metrics
 from dpsi.optim import Adam, screen_gradients
 from dpsi.parameters import IDENTIFIED, LEVEL1_FIXED, NAMES, Parameters, random_initial
 from dpsi.pointclouds import atomic_output
+from dpsi.provenance import library_checksum
 from dpsi.simulation import SimulationError, Simulator, SimulatorConfig
 
 LOG_FILE, SUMMARY_FILE, STATE_FILE = "log.csv", "summary.json", "state.json"
-STATE_VERSION = 1
+STATE_VERSION = 2
 
 METRICS = tuple(VALIDATION_METRICS)
 """The five validation metrics (mm): pcd_cd, prt_cd, pcd_emd, prt_emd, heightmap_mm."""
@@ -57,14 +63,15 @@ class IdentificationError(ValueError):
 
 def targets(dp: Datapoint) -> Targets:
     """The loss targets of a datapoint."""
-    return Targets(pcd=dp.pcd_target, prt=dp.prt_target, heightmap=HeightMapTarget(dp.heightmap, dp.centre_xy, dp.table_z))
+    return Targets(pcd=dp.pcd_target, prt=dp.prt_target, heightmap=dp.heightmap_target())
 
 
 def evaluate(simulator: Simulator, dp: Datapoint, params: Parameters) -> dict[str, float]:
     """Simulate ``dp`` with ``params`` and return its five validation metrics (mm); raises
     :class:`SimulationError` if the simulation fails."""
     final = simulator.forward(dp.scene(), params, keep_substeps=False)
-    return validation_metrics(final, dp.pcd_target, dp.prt_target, dp.heightmap, dp.centre_xy, dp.table_z)
+    return validation_metrics(final, dp.pcd_target, dp.prt_target, dp.heightmap, dp.centre_xy, dp.table_z,
+                              dp.particle_size)
 
 
 def _nan_gradient() -> dict[str, float]:
@@ -134,12 +141,14 @@ def check_run(level: int, loss: str, training: Sequence[Datapoint], validation_s
 
 def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_targets: Sequence[str]) -> None:
     """Raise naming ``dp`` if the simulator cannot hold it or one of its ``emd_targets`` (fields measured
-    by an earth mover's distance) is empty or has more points than the particles."""
+    by an earth mover's distance) is empty or has more points than the particles; the messages name the
+    option to change."""
     where = f"{dataset} datapoint {dp.id!r}"
     n = len(dp.particles)
     if n > config.max_particles:
         raise IdentificationError(f"{where} has {n} particles, more than the simulator's max_particles="
-                                  f"{config.max_particles}")
+                                  f"{config.max_particles}; lower the particle density or raise max_particles "
+                                  "(--max-particles, or simulator.max_particles in the workflow config)")
     if dp.trajectory.n_steps > config.max_steps:
         raise IdentificationError(f"{where} has {dp.trajectory.n_steps} steps, more than the simulator's "
                                   f"max_steps={config.max_steps}")
@@ -147,17 +156,49 @@ def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_t
         k = len(getattr(dp, field))
         if not 0 < k <= n:
             raise IdentificationError(f"{where}: {field} has {k} points; the earth mover's distance needs "
-                                      f"between 1 and the particle count {n}")
+                                      f"between 1 and the particle count {n}: raise the particle density (now "
+                                      f"{1.0 / dp.particle_volume:.3g} particles/m³; --density, or "
+                                      "reconstruction.density in the workflow config)")
 
 
 def _fingerprint(level, loss, seed, initial: Parameters, training, validation_set) -> dict:
-    """What a resumed run must share with the stored one."""
+    """The run's settings, named in an error when a stored state differs from them."""
     describe = lambda dps: [[dp.id, len(dp.particles), dp.trajectory.n_steps] for dp in dps]  # noqa: E731
     return {"level": level, "loss": loss, "seed": seed, "initial": initial.as_dict(),
             "training": describe(training), "validation": describe(validation_set)}
 
 
-def _load_state(path: Path, fingerprint: dict) -> dict | None:
+def _feed(digest, value) -> None:
+    """Add ``value`` (array, dataclass, mapping, sequence or scalar) to ``digest``, exactly."""
+    if isinstance(value, np.ndarray):
+        digest.update(f"{value.dtype.str}{value.shape}".encode())
+        digest.update(np.ascontiguousarray(value).tobytes())
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        for field in dataclasses.fields(value):
+            digest.update(field.name.encode())
+            _feed(digest, getattr(value, field.name))
+    elif isinstance(value, dict):
+        for key in sorted(value):
+            _feed(digest, key)
+            _feed(digest, value[key])
+    elif isinstance(value, (list, tuple)):
+        digest.update(f"[{len(value)}".encode())
+        for item in value:
+            _feed(digest, item)
+    else:
+        digest.update(repr(value).encode())
+
+
+def inputs_key(training: Sequence[Datapoint], validation_set: Sequence[Datapoint], config) -> str:
+    """SHA-256 of what determines a run's result besides its settings: every field of every training
+    and validation datapoint (particles, particle volume, trajectory, effector, targets, …), the simulator
+    settings ``config`` and the dpsi library's source code."""
+    digest = hashlib.sha256()
+    _feed(digest, [list(training), list(validation_set), config, library_checksum()])
+    return digest.hexdigest()
+
+
+def _load_state(path: Path, fingerprint: dict, key: str) -> dict | None:
     if not path.exists():
         return None
     try:
@@ -168,17 +209,23 @@ def _load_state(path: Path, fingerprint: dict) -> dict | None:
         raise IdentificationError(f"{path} is not a readable identification state ({err}); "
                                   "delete it to restart") from None
     if state.get("version") != STATE_VERSION:
-        raise IdentificationError(f"{path} has state version {state.get('version')}, expected {STATE_VERSION}")
+        raise IdentificationError(f"{path} has state version {state.get('version')}, expected {STATE_VERSION}; "
+                                  "delete it to restart")
     differ = sorted(k for k in fingerprint if stored.get(k) != fingerprint[k])
     if differ:
         raise IdentificationError(f"{path} belongs to a different run (differs in {differ}); "
                                   "use another output folder or delete it")
+    if state.get("inputs") != key:
+        raise IdentificationError(f"{path} belongs to a run of other inputs (datapoint arrays, targets, "
+                                  "effectors, particle volume, simulator settings or dpsi library code differ); "
+                                  "use another output folder or delete it")
     return state
 
 
-def _save_state(path: Path, fingerprint: dict, adam: Adam, rows: list[dict]) -> None:
+def _save_state(path: Path, fingerprint: dict, key: str, adam: Adam, rows: list[dict]) -> None:
     with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps({"version": STATE_VERSION, "run": fingerprint, "adam": adam.state(), "log": rows}))
+        tmp.write_text(json.dumps({"version": STATE_VERSION, "run": fingerprint, "inputs": key,
+                                   "adam": adam.state(), "log": rows}))
 
 
 def _row(k: int, params: Parameters, loss_mm: float, gradient: dict | None, skipped: int,
@@ -258,20 +305,21 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
     are replaced by :data:`~dpsi.parameters.LEVEL1_FIXED`); ``truth``: known
     parameters for the relative errors; ``simulator``: the process's simulator (default: one with
     :class:`SimulatorConfig` defaults); ``progress``: stream for progress messages (default stderr);
-    ``restart_if_different``: discard a state file left by a different run (other datapoints, seed or
-    initial values) instead of refusing to continue it.
+    ``restart_if_different``: discard a state file left by a different run (other settings, datapoints,
+    simulator settings or library code) instead of refusing to continue it.
     """
     config = simulator.config if simulator is not None else SimulatorConfig()
     initial = check_run(level, loss, training, validation_set, seed, iterations, initial, config)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     fingerprint = _fingerprint(level, loss, seed, initial, training, validation_set)
+    key = inputs_key(training, validation_set, config)
     if restart_if_different and (out_dir / STATE_FILE).exists():
         try:
-            _load_state(out_dir / STATE_FILE, fingerprint)
+            _load_state(out_dir / STATE_FILE, fingerprint, key)
         except IdentificationError:
             (out_dir / STATE_FILE).unlink()
-    state = _load_state(out_dir / STATE_FILE, fingerprint)
+    state = _load_state(out_dir / STATE_FILE, fingerprint, key)
     adam = Adam.from_state(state["adam"]) if state else Adam.for_level(initial, level)
     rows: list[dict] = state["log"] if state else []
     if rows and rows[-1]["iteration"] > iterations:
@@ -293,7 +341,7 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
         metrics, val_skipped = validation(simulator, validation_set, params)
         rows.append(_row(len(rows), params, loss_mm, gradient, skipped, metrics, val_skipped,
                          time.perf_counter() - start))
-        _save_state(out_dir / STATE_FILE, fingerprint, adam, rows)
+        _save_state(out_dir / STATE_FILE, fingerprint, key, adam, rows)
         bar.update(rows[-1])
     with atomic_output(out_dir / LOG_FILE) as tmp:
         pd.DataFrame(rows, columns=list(COLUMNS)).to_csv(tmp, index=False)
@@ -304,4 +352,5 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
 
 
 __all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "IdentificationError", "targets",
-           "evaluate", "training_gradient", "validation", "check_run", "summarise", "Progress", "identify"]
+           "inputs_key", "evaluate", "training_gradient", "validation", "check_run", "summarise",
+           "Progress", "identify"]

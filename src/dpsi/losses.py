@@ -92,30 +92,38 @@ def earth_movers(sim, target) -> LossResult:
 
 class HeightMapTarget(NamedTuple):
     """A real height map (cells, cells) in m over the default 0.11 m square, the square's centre
-    (2,) in m (SPEC §3.5), and the height (m) of cells no point falls in: the table."""
+    (2,) in m (SPEC §3.5), the height (m) of cells no point falls in (the table), and the side (m) of the
+    cube each simulated particle stands for (see :mod:`dpsi.heightmap`; 0 treats particles as points)."""
 
     heights: np.ndarray
     centre_xy: np.ndarray
     floor: float = 0.0
+    particle_size: float = 0.0
+
+
+def simulated_heightmap(sim, target: HeightMapTarget) -> np.ndarray:
+    """Height map (m) of the simulated particles (n, 3) in m over the target's square, drawn as the
+    target says (particle cubes, empty cells at its floor)."""
+    return height_map(sim, target.centre_xy, cells=np.shape(target.heights)[0], floor=target.floor,
+                      particle_size=target.particle_size)
 
 
 def heightmap_loss(sim, target: HeightMapTarget) -> LossResult:
     """Height-map distance (mm) of the particles to a real height map; the gradient of each
-    cell goes to the z of the particle holding that cell's highest z (SPEC §3.5, §7.7)."""
+    cell goes to the z of the particle holding that cell's highest z (SPEC §3.5, §7.7), summed over the
+    cells a particle holds."""
     sim = _points(sim, "simulated points")
     if not np.isfinite(sim).all():
         return _not_finite(sim)
     heights = np.asarray(target.heights, dtype=float)
     if heights.ndim != 2 or heights.shape[0] != heights.shape[1]:
         raise ValueError(f"target height map must be square (cells, cells), got {heights.shape}")
-    owners = height_map_owners(sim, target.centre_xy, cells=heights.shape[0])
-    value = heightmap_distance_mm(height_map(sim, target.centre_xy, cells=heights.shape[0], floor=target.floor),
-                                  heights)
+    owners = height_map_owners(sim, target.centre_xy, cells=heights.shape[0], particle_size=target.particle_size)
+    simulated = simulated_heightmap(sim, target)
     filled = owners >= 0
     gradient = np.zeros_like(sim)
-    # each particle owns at most one cell, so plain assignment suffices
-    gradient[owners[filled], 2] = np.sign(sim[owners[filled], 2] - heights[filled]) * MM_PER_M
-    return value, gradient
+    np.add.at(gradient[:, 2], owners[filled], np.sign(simulated[filled] - heights[filled]) * MM_PER_M)
+    return heightmap_distance_mm(simulated, heights), gradient
 
 
 def neg_heightmap_loss(sim, target: HeightMapTarget) -> LossResult:
@@ -170,12 +178,13 @@ VALIDATION_METRICS = {"pcd_cd": "pcd_cd", "prt_cd": "prt_cd", "pcd_emd": "pcd_em
 
 
 def validation_metrics(sim_points, pcd_target, prt_target, real_heightmap, centre_xy,
-                       floor: float = 0.0) -> dict[str, float]:
+                       floor: float = 0.0, particle_size: float = 0.0) -> dict[str, float]:
     """The five validation metrics in mm: pcd_cd, prt_cd, pcd_emd, prt_emd and heightmap_mm
-    (the height map of the particles against ``real_heightmap`` (cells, cells) in m centred at
-    ``centre_xy`` (2,) in m, empty cells at ``floor``, the table height in m); all point sets are
-    (k, 3) in m."""
-    targets = Targets(pcd=pcd_target, prt=prt_target, heightmap=HeightMapTarget(real_heightmap, centre_xy, floor))
+    (the height map of the particles, cubes of side ``particle_size`` m, against ``real_heightmap``
+    (cells, cells) in m centred at ``centre_xy`` (2,) in m, empty cells at ``floor``, the table height
+    in m); all point sets are (k, 3) in m."""
+    targets = Targets(pcd=pcd_target, prt=prt_target,
+                      heightmap=HeightMapTarget(real_heightmap, centre_xy, floor, particle_size))
     return {metric: loss_by_name(loss)(sim_points, targets)[0] for metric, loss in VALIDATION_METRICS.items()}
 
 
@@ -194,6 +203,6 @@ def bench_emd(n: int = 3000, seed: int = 0) -> dict[str, float]:
 
 
 __all__ = [
-    "LossResult", "chamfer", "earth_movers", "HeightMapTarget", "heightmap_loss", "neg_heightmap_loss",
+    "LossResult", "chamfer", "earth_movers", "HeightMapTarget", "simulated_heightmap", "heightmap_loss", "neg_heightmap_loss",
     "Targets", "LOSSES", "loss_by_name", "VALIDATION_METRICS", "validation_metrics", "bench_emd",
 ]

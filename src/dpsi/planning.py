@@ -29,8 +29,8 @@ import pandas as pd
 
 from dpsi.datasets import ood
 from dpsi.effectors import Effector
-from dpsi.heightmap import height_map, heightmap_distance_mm
-from dpsi.losses import HeightMapTarget
+from dpsi.heightmap import heightmap_distance_mm
+from dpsi.losses import HeightMapTarget, simulated_heightmap
 from dpsi.motions import Trajectory, trajectory
 from dpsi.parameters import Parameters
 from dpsi.pointclouds import atomic_output
@@ -107,11 +107,6 @@ def candidates(particles: np.ndarray, actions: ActionSet) -> list[Action]:
     return [EMPTY_ACTION] + [Action(motion, start) for motion in actions.motions for start in starts]
 
 
-def heightmap_of(particles: np.ndarray, target: HeightMapTarget) -> np.ndarray:
-    """Height map (m) of ``particles`` (n, 3) in m over the target's square, empty cells at its floor."""
-    return height_map(particles, target.centre_xy, cells=target.heights.shape[0], floor=target.floor)
-
-
 @dataclass
 class Step:
     """One chosen action: the state after it (``particles`` (n, 3) m, ``heightmap`` m), its distance to
@@ -135,7 +130,7 @@ class Plan:
 
     @property
     def initial_heightmap(self) -> np.ndarray:
-        return heightmap_of(self.start, self.target)
+        return simulated_heightmap(self.start, self.target)
 
     @property
     def initial_distance_mm(self) -> float:
@@ -177,7 +172,7 @@ class Planner:
                 skipped.append((action, str(err)))
                 log.info("action %d: %s skipped: %s", number, _describe(action), err)
                 continue
-            heights = heightmap_of(after, target)
+            heights = simulated_heightmap(after, target)
             distance = heightmap_distance_mm(heights, target.heights)
             log.info("action %d: %s → %.1f mm", number, _describe(action), distance)
             if best is None or distance < best.distance_mm:
@@ -241,6 +236,7 @@ def save_plan(json_path: str | os.PathLike, npz_path: str | os.PathLike, plan: P
     with atomic_output(json_path) as tmp:
         tmp.write_text(json.dumps({**metadata, **plan_record(plan)}, indent=1))
     arrays = {"target": plan.target.heights, "centre_xy": plan.target.centre_xy, "floor": plan.target.floor,
+              "particle_size": plan.target.particle_size,
               "start": plan.start, "particles": np.array([s.particles for s in plan.steps]),
               "heightmaps": np.array([s.heightmap for s in plan.steps])}
     with atomic_output(npz_path) as tmp, open(tmp, "wb") as f:
@@ -251,7 +247,7 @@ def load_plan(json_path: str | os.PathLike, npz_path: str | os.PathLike) -> tupl
     """The plan written by :func:`save_plan` and its JSON record (with the metadata)."""
     record = json.loads(Path(json_path).read_text())
     with np.load(npz_path) as data:
-        target = HeightMapTarget(data["target"], data["centre_xy"], float(data["floor"]))
+        target = HeightMapTarget(data["target"], data["centre_xy"], float(data["floor"]), float(data["particle_size"]))
         steps = [Step(Action.from_dict(a), particles, heights, a["distance_mm"], a["candidates"],
                       [(Action.from_dict(s), s["reason"]) for s in a["skipped"]])
                  for a, particles, heights in zip(record["actions"], data["particles"], data["heightmaps"])]
@@ -259,4 +255,4 @@ def load_plan(json_path: str | os.PathLike, npz_path: str | os.PathLike) -> tupl
 
 
 __all__ = ["TARGET_MOTION", "EMPTY", "Action", "EMPTY_ACTION", "ActionSet", "start_locations", "candidates",
-           "heightmap_of", "Step", "Plan", "Planner", "start_datapoint", "plan_record", "save_plan", "load_plan"]
+           "Step", "Plan", "Planner", "start_datapoint", "plan_record", "save_plan", "load_plan"]

@@ -63,10 +63,15 @@ def surface_points(mesh: o3d.geometry.TriangleMesh, spacing: float = SURFACE_SPA
     return a[tri] + u[:, None] * (b[tri] - a[tri]) + w[:, None] * (c[tri] - a[tri])
 
 
-def state_points(source: StateSource, workspace, table_z: float, name: str = "state") -> np.ndarray:
+def state_points(source: StateSource, workspace, table_z: float, name: str = "state", config=None) -> np.ndarray:
     """Surface points (n, 3) in m of one state: its fused views, its given fused cloud, or points
-    sampled on its given mesh."""
+    sampled on its given mesh. Given the simulator's ``config``, a given cloud or mesh must fit its box
+    (:func:`check_extent`, before anything is sampled or meshed)."""
     data = source.load()
+    if config is not None and source.form == "fused":
+        check_extent(data.max(axis=0) - data.min(axis=0), config, name)
+    elif config is not None and source.form == "mesh":
+        check_extent(data.get_max_bound() - data.get_min_bound(), config, name)
     if source.form == "mesh":
         return surface_points(data)
     return fuse_state(data, workspace, table_z, name) if source.form == "views" else data
@@ -77,21 +82,75 @@ def state_mesh(source: StateSource, points: np.ndarray, name: str = "state") -> 
     return source.load() if source.form == "mesh" else reconstruct_mesh(points, name=name)
 
 
-def reconstruct_state(source: StateSource, workspace, table_z: float,
-                      name: str = "state") -> tuple[np.ndarray, o3d.geometry.TriangleMesh]:
+def reconstruct_state(source: StateSource, workspace, table_z: float, name: str = "state",
+                      config=None) -> tuple[np.ndarray, o3d.geometry.TriangleMesh]:
     """Surface points and watertight mesh of one state, entering the reconstruction at the stage
-    matching the form it is given in (views: fusion; fused cloud: meshing; mesh: as it is)."""
-    points = state_points(source, workspace, table_z, name)
+    matching the form it is given in (views: fusion; fused cloud: meshing; mesh: as it is); ``config``
+    as in :func:`state_points`."""
+    points = state_points(source, workspace, table_z, name, config)
     return points, state_mesh(source, points, name)
 
 
-def fill_particles(mesh: o3d.geometry.TriangleMesh, density: float, name: str = "before mesh") -> np.ndarray:
+def _volume(mesh: o3d.geometry.TriangleMesh) -> float:
+    """Volume (m³) enclosed by a closed triangle mesh (divergence theorem)."""
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    return abs(float(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum())) / 6.0
+
+
+def _too_many(name: str, n: float, density: float, volume: float, capacity: int) -> ValueError:
+    return ValueError(f"{name}: this density ({density:.3g} particles/m³) gives ~{n:.3g} particles in the "
+                      f"{volume * 1e6:.3g} cm³ object, the simulator holds {capacity}: lower the density to at most "
+                      f"~{capacity / volume:.2g} particles/m³ (--density, or reconstruction.density in the workflow "
+                      "config) or raise the capacity (--max-particles, or simulator.max_particles)")
+
+
+def check_extent(extent, config, name: str = "state") -> None:
+    """``ValueError`` naming ``name`` if an object of ``extent`` (x, y, z) m is larger than the simulated box
+    of ``config`` (``width`` × ``width`` × ``height`` m), suggesting millimetres when it is far larger."""
+    extent = np.asarray(extent, dtype=float)
+    box = np.array([config.width, config.width, config.height])
+    if (extent > box).any():
+        units = " — are the units millimetres? Shapes must be in metres" if extent.max() > 10 * box.max() else ""
+        raise ValueError(f"{name}: the object is {extent.max():.3g} m across ({' × '.join(f'{e:.3g}' for e in extent)}"
+                         f" m), larger than the simulated box {config.width:g} × {config.width:g} × "
+                         f"{config.height:g} m{units}")
+
+
+def check_fits(mesh: o3d.geometry.TriangleMesh, density: float, config, name: str = "before mesh") -> None:
+    """Before filling: ``ValueError`` naming ``name`` if the object is larger than the simulated box of
+    ``config`` (a :class:`~dpsi.simulation.SimulatorConfig`: ``width`` × ``width`` × ``height`` m) or if
+    its volume × ``density`` is clearly more than ``config.max_particles`` (fill would allocate a lattice
+    for nothing; the exact count is checked after filling)."""
+    check_extent(mesh.get_max_bound() - mesh.get_min_bound(), config, name)
+    volume = _volume(mesh)
+    if volume * density > 2 * config.max_particles:
+        raise _too_many(name, volume * density, density, volume, config.max_particles)
+
+
+def fill_particles(mesh: o3d.geometry.TriangleMesh, density: float, name: str = "before mesh",
+                   config=None) -> np.ndarray:
     """Particles (n, 3) in m filling ``mesh`` at ``density`` particles/m³ (SPEC §3.3); each stands for
-    1/density m³. ``ValueError`` naming ``name`` if none fits."""
+    1/density m³. ``ValueError`` naming ``name`` if none fits, or, given the simulator's ``config``, if the
+    object does not fit its box or the particles its capacity (:func:`check_fits`)."""
+    if config is not None:
+        check_fits(mesh, density, config, name)
     particles = fill(mesh, density)
     if len(particles) == 0:
         raise ValueError(f"{name}: no particles fit inside the mesh at {density:.4g} particles/m³")
+    if config is not None and len(particles) > config.max_particles:
+        raise _too_many(name, len(particles), density, _volume(mesh), config.max_particles)
     return particles
+
+
+def density_holding(mesh: o3d.geometry.TriangleMesh, count: int, density: float, factor: float = 1.05,
+                    tries: int = 100) -> float:
+    """The lowest density ``density`` · ``factor``^j (j ≥ 1, particles/m³) at which filling ``mesh`` gives at
+    least ``count`` particles; ``ValueError`` if none of ``tries`` steps does."""
+    for _ in range(tries):
+        density *= factor
+        if len(fill(mesh, density)) >= count:
+            return density
+    raise ValueError(f"no density up to {density:.3g} particles/m³ fills the mesh with {count} particles")
 
 
 def footprint_centre(particles: np.ndarray) -> np.ndarray:
@@ -143,4 +202,5 @@ def prepare_datapoint(dataset: RawDataset, datapoint: str | RawDatapoint, densit
 
 
 __all__ = ["SURFACE_SPACING", "fuse_state", "surface_points", "state_points", "state_mesh", "reconstruct_state",
-           "fill_particles", "footprint_centre", "targets", "trajectory_and_start", "build_datapoint", "prepare_datapoint"]
+           "check_extent", "check_fits", "density_holding", "fill_particles", "footprint_centre", "targets",
+           "trajectory_and_start", "build_datapoint", "prepare_datapoint"]

@@ -28,18 +28,16 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from dpsi.datapoints_table import COLUMNS, ROLES, TableError, read_table
 from dpsi.effectors import BUILT_IN
-from dpsi.motions import MOTIONS, read_waypoints
+from dpsi.motions import read_waypoints
 from dpsi.pointclouds import (CLOUD_SUFFIXES, MESH_SUFFIXES, TRANSFORM_SUFFIXES, View, atomic_output,
                               check_points, check_rigid, read_mesh, read_points, read_transform, write_points,
                               write_transform)
 from dpsi.reconstruction.meshing import is_watertight
 
-COLUMNS = ("id", "motion", "effector", "level", "role", "material")
-ROLES = ("train", "validation", "ood")
 STATES = ("before", "after")
 EFFECTOR_KINDS = tuple(BUILT_IN)
-_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 _VIEW = re.compile(r"^view_(\d+)$")
 
 
@@ -61,7 +59,7 @@ class StateSource:
             return [View(read_points(c), read_transform(t)) for c, t in self.paths]
         if self.form == "fused":
             return read_points(self.paths[0])
-        return read_mesh(self.paths[0])
+        return read_closed_mesh(self.paths[0])
 
 
 @dataclass(frozen=True)
@@ -111,6 +109,15 @@ def _fail(path: Path, problem: str):
     raise RawDataError(f"{path}: {problem}")
 
 
+def read_closed_mesh(path: str | os.PathLike):
+    """The watertight mesh (m) in ``path``; :class:`RawDataError` naming the file if it is not closed."""
+    mesh = read_mesh(path)
+    if not is_watertight(mesh):
+        _fail(Path(path), "mesh is not watertight (every edge must join exactly two consistently wound faces); "
+                          "close its holes, or give the shape as a point cloud")
+    return mesh
+
+
 def _read_config(root: Path) -> tuple[float, tuple | None, dict[str, EffectorSpec]]:
     path = root / "dataset.yaml"
     effectors = {name: EffectorSpec(name, kind=name) for name in EFFECTOR_KINDS}
@@ -158,42 +165,10 @@ def _read_config(root: Path) -> tuple[float, tuple | None, dict[str, EffectorSpe
 
 
 def _read_table(root: Path, effectors: dict[str, EffectorSpec]) -> pd.DataFrame:
-    path = root / "datapoints.csv"
-    if not path.is_file():
-        _fail(path, "datapoints table not found")
     try:
-        df = pd.read_csv(path, dtype=str, keep_default_na=False)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        _fail(path, f"not a readable CSV file ({e})")
-    missing = [c for c in COLUMNS if c not in df.columns]
-    if missing:
-        _fail(path, f"missing column(s) {missing}; expected {list(COLUMNS)}")
-    if df.empty:
-        _fail(path, "has no datapoints")
-    for row, r in enumerate(df.itertuples(index=False), start=2):
-        where = f"line {row}"
-        if not _ID.match(r.id):
-            _fail(path, f"{where}: id {r.id!r} must be letters, digits, '_', '-' or '.'")
-        if r.motion not in MOTIONS:
-            _fail(path, f"{where}: unknown motion {r.motion!r}; known motions are {sorted(MOTIONS)}")
-        if r.effector not in effectors:
-            _fail(path, f"{where}: unknown effector {r.effector!r}; known effectors are {sorted(effectors)}")
-        tied = MOTIONS[r.motion].effector
-        if tied is not None and effectors[r.effector].kind not in (None, tied):
-            _fail(path, f"{where}: motion {r.motion} is made with the {tied} effector, not {r.effector}")
-        if r.level not in ("1", "2"):
-            _fail(path, f"{where}: level must be 1 or 2, not {r.level!r}")
-        expected = MOTIONS[r.motion].level
-        if expected is not None and int(r.level) != expected:
-            _fail(path, f"{where}: motion {r.motion} belongs to level {expected}, not {r.level}")
-        if r.role not in ROLES:
-            _fail(path, f"{where}: role must be one of {list(ROLES)}, not {r.role!r}")
-        if not r.material.strip():
-            _fail(path, f"{where}: material is empty")
-    dup = df["id"][df["id"].duplicated()].tolist()
-    if dup:
-        _fail(path, f"duplicate datapoint id(s) {sorted(set(dup))}")
-    return df
+        return read_table(root / "datapoints.csv", {name: spec.kind for name, spec in effectors.items()})
+    except TableError as e:
+        raise RawDataError(str(e)) from None
 
 
 def _one(folder: Path, stem: str, suffixes: tuple[str, ...]) -> list[Path]:
@@ -214,9 +189,7 @@ def _state_source(folder: Path, state: str) -> StateSource:
             read_points(fused[0])
             return StateSource("fused", (fused[0],))
         if forms == ["mesh"]:
-            if not is_watertight(read_mesh(meshes[0])):
-                _fail(meshes[0], "mesh is not watertight (every edge must join exactly two consistently "
-                                 "wound faces)")
+            read_closed_mesh(meshes[0])
             return StateSource("mesh", (meshes[0],))
         pairs = []
         clouds = sorted((p for p in views_dir.iterdir() if _VIEW.match(p.name.split(".")[0])
@@ -313,4 +286,5 @@ def write_datapoints_table(path: str | os.PathLike, rows: list[dict]) -> None:
 
 
 __all__ = ["COLUMNS", "ROLES", "STATES", "EFFECTOR_KINDS", "RawDataError", "StateSource", "EffectorSpec",
-           "RawDatapoint", "RawDataset", "load_raw_dataset", "write_views", "write_datapoints_table"]
+           "RawDatapoint", "RawDataset", "read_closed_mesh", "load_raw_dataset", "write_views",
+           "write_datapoints_table"]

@@ -8,6 +8,7 @@ from snakemake.exceptions import WorkflowError
 from snakemake.utils import validate
 
 from dpsi import datasets as dpsi_datasets
+from dpsi.datapoints_table import TableError, check_table, read_table
 from dpsi import twin as dpsi_twin
 
 validate(config, "../schemas/config.schema.yaml")
@@ -31,17 +32,23 @@ def library(*modules):
 
 
 def datapoints_table():
-    """The datapoints table: planned by the twin config, or read from the raw dataset."""
+    """The datapoints table: planned by the twin config, or read from the raw dataset; checked at parse
+    time (ids become file names, so an unsafe id must never reach a rule)."""
     if "twin" in config:
         plan = dpsi_twin.plan_from_config(config["twin"]["groups"])
-        return pd.DataFrame(dpsi_twin.plan_rows(plan))
+        table = pd.DataFrame(dpsi_twin.plan_rows(plan))
+        check_table(table.astype(str), "the twin's plan")
+        return table
     path = Path(RAW) / "datapoints.csv"
     if not path.is_file():
         raise WorkflowError(
             f"{path} not found: put a raw dataset there (docs/raw-format.md) or give a `twin` "
             "section in the config"
         )
-    return pd.read_csv(path, dtype=str)
+    try:
+        return read_table(path)
+    except TableError as err:
+        raise WorkflowError(f"{err} (docs/raw-format.md)")
 
 
 TABLE = datapoints_table()

@@ -8,7 +8,8 @@ import json
 import numpy as np
 
 from dpsi.datapoint import load_datapoint
-from dpsi.heightmap import height_map, heightmap_distance_mm
+from dpsi.heightmap import heightmap_distance_mm
+from dpsi.losses import simulated_heightmap
 from dpsi.parameter_sources import best_run
 from dpsi.parameters import HAND_PICKED, Parameters
 from dpsi.pointclouds import atomic_output
@@ -28,7 +29,7 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
     for path in snakemake.input.datapoints:
         dp = load_datapoint(path)
         final = simulator.forward(dp.scene(), params, keep_substeps=False)
-        distance = heightmap_distance_mm(height_map(final, dp.centre_xy, floor=dp.table_z), dp.heightmap)
+        distance = heightmap_distance_mm(simulated_heightmap(final, dp.heightmap_target()), dp.heightmap)
         records.append({"motion": dp.motion, "config": dp.id, "loss": loss, "dataset": dataset,
                         "parameters": params.as_dict(), "heightmap_mm": distance})
         finals[dp.id] = final

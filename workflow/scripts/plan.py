@@ -2,7 +2,6 @@
 
 from dpsi.datapoint import load_datapoint
 from dpsi.effectors import by_name
-from dpsi.losses import HeightMapTarget
 from dpsi.parameter_sources import resolve_from_files
 from dpsi.planning import ActionSet, Planner, save_plan
 from dpsi.provenance import recorded
@@ -17,7 +16,7 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
                         settings["spacing"])
     planner = Planner(Simulator(SimulatorConfig(**snakemake.params.simulator)), params, actions,
                       dp.particle_volume, dp.table_z)
-    plan = planner.plan(dp.particles, HeightMapTarget(dp.heightmap, dp.centre_xy, dp.table_z), settings["actions"])
+    plan = planner.plan(dp.particles, dp.heightmap_target(), settings["actions"])
     log.info("height-map distance %.1f mm → %.1f mm", plan.initial_distance_mm, plan.final_distance_mm)
     save_plan(snakemake.output.record, snakemake.output.arrays, plan, datapoint=dp.id,
               parameter_source=settings["parameters"], parameters=params.as_dict(), motions=settings["motions"],

@@ -18,8 +18,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from dpsi.heightmap import SIZE, height_map, heightmap_distance_mm
+from dpsi.heightmap import SIZE, heightmap_distance_mm
 from dpsi.losses import VALIDATION_METRICS as METRICS
+from dpsi.losses import simulated_heightmap
 from dpsi.parameters import IDENTIFIED, LOWER, UPPER
 from dpsi.pointclouds import atomic_output
 
@@ -159,8 +160,7 @@ def plot_heightmaps(datapoint: Datapoint, final_particles, png_path: str | Path,
     """Real vs simulated height map (mm above the table) and simulated − real (mm), with the
     height-map distance (mm) in the title. ``final_particles`` (n, 3) in m."""
     real = np.asarray(datapoint.heightmap, dtype=float)
-    sim = height_map(_checked_points(final_particles, "final particles"), datapoint.centre_xy,
-                     cells=real.shape[0], floor=datapoint.table_z)
+    sim = simulated_heightmap(_checked_points(final_particles, "final particles"), datapoint.heightmap_target())
     distance = heightmap_distance_mm(sim, real)
     real_mm, sim_mm = ((m - datapoint.table_z) * MM_PER_M for m in (real, sim))
     diff_mm = sim_mm - real_mm
@@ -216,5 +216,37 @@ def plot_particles(datapoint: Datapoint, final_particles, png_path: str | Path, 
     save(fig, png_path, pdf_path)
 
 
+def plot_recovery(table: pd.DataFrame, png_path: str | Path, pdf_path: str | Path) -> None:
+    """Identifiability ladder figure: relative error (%) of each identified parameter, one panel per
+    (level, rung), bars per loss (median over datasets and seeds) and a dot per run. ``table`` has the
+    columns of :data:`dpsi.identifiability.COLUMNS`."""
+    missing = [c for c in ("rung", "level", "loss", "parameter", "rel_error") if c not in table.columns]
+    if missing or table.empty:
+        raise ValueError(f"ladder table is empty or lacks column(s) {missing}: nothing to plot")
+    panels = sorted(set(zip(table["level"], table["rung"])))
+    losses = list(dict.fromkeys(table["loss"]))
+    fig = new_figure(4.2 * len(panels), 3.4)
+    axes = np.atleast_1d(fig.subplots(1, len(panels), sharey=True))
+    width = 0.8 / len(losses)
+    for ax, (level, rung) in zip(axes, panels):
+        rows = table[(table["level"] == level) & (table["rung"] == rung)]
+        names = [n for n in IDENTIFIED[level] if n in set(rows["parameter"])]
+        for k, loss in enumerate(losses):
+            mine = rows[rows["loss"] == loss]
+            x = np.arange(len(names)) + (k - (len(losses) - 1) / 2) * width
+            errors = [100 * mine.loc[mine["parameter"] == n, "rel_error"] for n in names]
+            ax.bar(x, [e.median() if len(e) else np.nan for e in errors], width, label=loss, color=f"C{k}")
+            for xi, e in zip(x, errors):
+                ax.plot(np.full(len(e), xi), e, "k.", markersize=3)
+        ax.set_xticks(np.arange(len(names)), [PARAMETER_AXES[n][0].split(" (")[0] for n in names])
+        ax.set_yscale("symlog", linthresh=10)
+        ax.axhline(10, color="grey", lw=0.8, ls="--")
+        ax.set_title(f"level {level}, {rung}")
+    axes[0].set_ylabel("relative error (%)")
+    axes[-1].legend(fontsize=7)
+    fig.suptitle("Identifiability ladder: recovery error per parameter (dashed: 10 %)")
+    save(fig, png_path, pdf_path)
+
+
 __all__ = ["DPI", "METRIC_LABELS", "PARAMETER_AXES", "new_figure", "save", "plot_runs", "plot_heightmaps",
-           "plot_particles"]
+           "plot_particles", "plot_recovery"]

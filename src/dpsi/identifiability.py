@@ -1,0 +1,201 @@
+"""The identifiability ladder: how far identification gets from the truth, one source of error at a time.
+
+On the synthetic twin the truth θ* is known, so a run's error can be traced to what stands between the true
+object and the simulator. Three rungs share the datapoints (same lumps, trajectories, training and
+validation sets) and differ only in how the targets come about:
+
+- **R0, same model**: the targets are the identification simulator's own final particles at θ*, from the
+  particles it starts with (PCD and PRT targets are those particles, the height map theirs). Every loss is
+  zero at θ*, so a run that misses θ* here has a gradient, step-size or identifiability problem.
+- **R1, reconstructed**: the twin simulated at the identification's own resolution (cell size and particle
+  density), its targets made as for a robot: capture → fusion → meshing → filling.
+- **R2, finer twin**: the main pipeline's datapoints, whose twin is simulated finer than identification.
+
+For each run the ladder reports the recovered parameters and their relative errors, the training loss at θ*
+and at the estimate, and the validation height-map distance next to those of the hand-picked parameters
+and of no motion at all. Units: mm for losses and distances, SI for parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from dpsi.datapoint import Datapoint
+from dpsi.heightmap import heightmap_distance_mm
+from dpsi.identification import evaluate, targets
+from dpsi.losses import loss_by_name, simulated_heightmap
+from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, LOWER, UPPER, Parameters
+from dpsi.simulation import Simulator, SimulatorConfig
+
+RUNGS = {
+    "R0": "same model: targets are the identification simulator's own result at the truth",
+    "R1": "reconstructed: twin at the identification resolution, targets through capture and reconstruction",
+    "R2": "finer twin: the main pipeline's datapoints, twin simulated finer than identification",
+}
+"""The rungs, from the easiest to the real pipeline."""
+
+LADDER_LOSSES = ("pcd_cd", "prt_cd", "pcd_emd", "prt_emd", "heightmap")
+"""The training losses whose value at the truth the ladder reports: the four of SPEC §5 and the height map."""
+
+COLUMNS = ("rung", "level", "loss", "dataset", "seed", "parameter", "truth", "estimate", "rel_error",
+           "loss_at_truth_mm", "loss_at_estimate_mm", "val_heightmap_mm", "val_heightmap_hand_picked_mm",
+           "val_heightmap_no_motion_mm")
+"""Columns of the ladder table: one row per run and identified parameter."""
+
+
+def check_rung(rung: str) -> str:
+    """``rung`` if it is one of :data:`RUNGS`, else a ValueError listing them."""
+    if rung not in RUNGS:
+        raise ValueError(f"unknown rung {rung!r}; the ladder's rungs are {list(RUNGS)}")
+    return rung
+
+
+def same_model_datapoint(dp: Datapoint, simulator: Simulator, truth: Parameters) -> Datapoint:
+    """R0: ``dp`` with its targets replaced by the simulator's own final particles at ``truth`` (both point
+    targets are those particles; the height map is theirs, drawn as particle cubes)."""
+    final = simulator.forward(dp.scene(), truth, keep_substeps=False)
+    return dataclasses.replace(dp, pcd_target=final.copy(), prt_target=final.copy(),
+                               heightmap=simulated_heightmap(final, dp.heightmap_target()))
+
+
+def reconstructed_twin_datapoint(root: str | os.PathLike, datapoint_id: str, plan, seed: int,
+                                 config: SimulatorConfig, density: float,
+                                 materials: Mapping[str, Parameters]) -> Datapoint:
+    """R1: the twin datapoint ``datapoint_id`` of ``plan`` (same lump and trajectory as the main twin with
+    ``seed`` and ground truth ``materials``) simulated with the identification's ``config`` and ``density``
+    (particles/m³) under ``root``, then reconstructed from its camera views and prepared at ``density``."""
+    from dpsi.prepare import prepare_datapoint  # open3d and pymeshlab: only this rung needs them
+    from dpsi.rawdata import load_raw_dataset
+    from dpsi.twin import generate_datapoint, write_twin_table
+
+    write_twin_table(root, plan, seed, dict(materials), config, density)
+    generate_datapoint(root, datapoint_id)
+    return prepare_datapoint(load_raw_dataset(root, only=[datapoint_id]), datapoint_id, density)
+
+
+def level_truth(truth: Parameters, level: int) -> Parameters:
+    """The truth as a run of ``level`` can reach it: level 1 holds the frictions at their fixed values."""
+    return truth.replace(**LEVEL1_FIXED) if level == 1 else truth
+
+
+def reference(simulator: Simulator, training: Sequence[Datapoint], validation: Sequence[Datapoint],
+              truth: Parameters, level: int) -> dict:
+    """What a run of ``level`` on these datapoints is compared with: the mean training loss (mm) of each of
+    :data:`LADDER_LOSSES` at the truth, and the mean validation height-map distance (mm) of the truth, of
+    the hand-picked parameters (frictions as the level holds them) and of no motion (the before particles)."""
+    truth = level_truth(truth, level)
+    finals = [simulator.forward(dp.scene(), truth, keep_substeps=False) for dp in training]
+    loss_at_truth = {loss: float(np.mean([loss_by_name(loss)(final, targets(dp))[0]
+                                          for final, dp in zip(finals, training)])) for loss in LADDER_LOSSES}
+
+    def val_heightmap(params: Parameters) -> float:
+        return float(np.mean([evaluate(simulator, dp, params)["heightmap_mm"] for dp in validation]))
+
+    hand_picked = HAND_PICKED.replace(**LEVEL1_FIXED) if level == 1 else HAND_PICKED
+    no_motion = float(np.mean([heightmap_distance_mm(simulated_heightmap(dp.particles, dp.heightmap_target()),
+                                                     dp.heightmap) for dp in validation]))
+    return {"level": level, "truth": truth.as_dict(), "loss_at_truth_mm": loss_at_truth,
+            "val_heightmap_truth_mm": val_heightmap(truth), "val_heightmap_hand_picked_mm": val_heightmap(hand_picked),
+            "val_heightmap_no_motion_mm": no_motion}
+
+
+def run_rows(summary: dict, log: pd.DataFrame, ref: dict) -> list[dict]:
+    """Ladder-table rows of one run: its ``summary`` (:func:`dpsi.identification.summarise` with the labels
+    rung, level, loss, dataset and seed), its ``log`` rows (for the training loss at the best row) and the
+    ``ref`` of its (rung, level, dataset) from :func:`reference`."""
+    level, loss, best = int(summary["level"]), summary["loss"], summary["best"]
+    at_best = log.loc[log["iteration"] == best["iteration"], "train_loss_mm"] if best else []
+    common = {"rung": check_rung(summary["rung"]), "level": level, "loss": loss, "dataset": summary["dataset"],
+              "seed": int(summary["seed"]), "loss_at_truth_mm": ref["loss_at_truth_mm"].get(loss, math.nan),
+              "loss_at_estimate_mm": float(at_best.iloc[0]) if len(at_best) else math.nan,
+              "val_heightmap_mm": best["validation"]["heightmap_mm"] if best else math.nan,
+              "val_heightmap_hand_picked_mm": ref["val_heightmap_hand_picked_mm"],
+              "val_heightmap_no_motion_mm": ref["val_heightmap_no_motion_mm"]}
+    rows = []
+    for name in IDENTIFIED[level]:
+        true, estimate = ref["truth"][name], best["parameters"][name] if best else math.nan
+        rows.append({**common, "parameter": name, "truth": true, "estimate": estimate,
+                     "rel_error": abs(estimate - true) / abs(true)})
+    return rows
+
+
+RUN_LABELS = ("rung", "level", "loss", "dataset", "seed")
+
+
+def ladder_table(summaries: Sequence[dict], logs: pd.DataFrame, references: Mapping[tuple, dict]) -> pd.DataFrame:
+    """The ladder table (:data:`COLUMNS`): the rows of every run, sorted by rung, level, loss, dataset and
+    seed. ``summaries`` carry the :data:`RUN_LABELS`, ``logs`` holds every run's log rows with the labels as
+    columns, ``references`` maps (rung, level, dataset) to :func:`reference`'s result."""
+    rows = []
+    for summary in summaries:
+        mine = np.logical_and.reduce([logs[k] == summary[k] for k in RUN_LABELS])
+        ref = references[(summary["rung"], int(summary["level"]), summary["dataset"])]
+        rows += run_rows(summary, logs[mine], ref)
+    table = pd.DataFrame(rows, columns=list(COLUMNS))
+    return table.sort_values(list(RUN_LABELS), kind="stable").reset_index(drop=True)
+
+
+def recovery_summary(table: pd.DataFrame) -> pd.DataFrame:
+    """Median relative error per (rung, level, loss) and parameter over datasets and seeds: the numbers the
+    README quotes and the figure draws."""
+    return table.groupby(["rung", "level", "loss", "parameter"])["rel_error"].median().unstack("parameter")
+
+
+SCAN_PARAMETERS = ("E", "yield_stress")
+SCAN_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0, 4.0)
+"""The one-parameter scans of :func:`loss_minima`: these parameters at these multiples of the truth."""
+
+
+def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: float) -> dict[str, float]:
+    """Where the distance between simulation and truth comes from, for one twin datapoint ``dp`` prepared by
+    the main pipeline and its twin ``ground_truth`` (:class:`dpsi.twin.GroundTruth`): the height-map distance
+    (mm) to the twin's true after surface of the captured target (``target``: capture and reconstruction of
+    the after state), and of simulations at the truth on this ``simulator`` started from the twin's own
+    particles (``twin_particles``: the simulator's resolution alone), from the true before shape filled at
+    ``density`` particles/m³ (``true_shape_filled``: adds the particle density), and from the reconstructed
+    before particles (``reconstructed``: adds the before shape's reconstruction; the pipeline)."""
+    from dpsi.reconstruction.filling import fill, particles_to_mesh  # open3d and pymeshlab
+
+    truth, true_hm = ground_truth.parameters, ground_truth.heightmap
+
+    def distance(particles: np.ndarray, volume: float) -> float:
+        scene = dataclasses.replace(dp.scene(), particles=particles, particle_volume=volume)
+        final = simulator.forward(scene, truth, keep_substeps=False)
+        target = dp.heightmap_target()._replace(heights=true_hm, particle_size=volume ** (1 / 3))
+        return heightmap_distance_mm(simulated_heightmap(final, target), true_hm)
+
+    true_shape = particles_to_mesh(ground_truth.before_particles, ground_truth.particle_volume ** (1 / 3))
+    return {"target": heightmap_distance_mm(dp.heightmap, true_hm),
+            "twin_particles": distance(ground_truth.before_particles, ground_truth.particle_volume),
+            "true_shape_filled": distance(fill(true_shape, density), 1.0 / density),
+            "reconstructed": distance(dp.particles, dp.particle_volume)}
+
+
+def loss_minima(simulator: Simulator, dp: Datapoint, truth: Parameters,
+                losses: Sequence[str] = LADDER_LOSSES) -> pd.DataFrame:
+    """One-parameter scans through ``truth`` (:data:`SCAN_PARAMETERS` at :data:`SCAN_FACTORS` times the truth,
+    within their ranges) of each loss on ``dp``: per (parameter, loss) the value (SI) with the lowest loss and
+    the loss (mm) there and at the truth. A loss whose minimum is not at the truth is biased on these data,
+    whatever the optimiser does."""
+    rows = []
+    for name in SCAN_PARAMETERS:
+        true = getattr(truth, name)
+        values = [true * f for f in SCAN_FACTORS if LOWER[name] <= true * f <= UPPER[name]]
+        finals = [simulator.forward(dp.scene(), truth.replace(**{name: v}), keep_substeps=False) for v in values]
+        for loss in losses:
+            scan = [loss_by_name(loss)(final, targets(dp))[0] for final in finals]
+            best = int(np.argmin(scan))
+            rows.append({"parameter": name, "loss": loss, "truth": true, "argmin": values[best],
+                         "loss_at_argmin_mm": scan[best], "loss_at_truth_mm": scan[values.index(true)]})
+    return pd.DataFrame(rows)
+
+
+
+__all__ = ["RUNGS", "LADDER_LOSSES", "COLUMNS", "check_rung", "same_model_datapoint", "reconstructed_twin_datapoint",
+           "level_truth", "reference", "run_rows", "RUN_LABELS", "ladder_table", "recovery_summary", "SCAN_PARAMETERS", "SCAN_FACTORS", "bias_sources", "loss_minima"]

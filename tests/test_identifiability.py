@@ -1,0 +1,84 @@
+"""The identifiability ladder: R0 (same model) on the tiny poked block of test_identification, and the
+ladder table."""
+
+import io
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from dpsi.datapoint import Datapoint
+from dpsi.identifiability import (COLUMNS, LADDER_LOSSES, SCAN_PARAMETERS, ladder_table, loss_minima, recovery_summary,
+                                  reference, same_model_datapoint)
+from dpsi.identification import identify
+from dpsi.parameters import IDENTIFIED
+from dpsi.simulation import Simulator
+from test_identification import CONFIG, SPACING, TRUTH, block, poke
+
+
+def untargeted(effector: str, depth: float) -> Datapoint:
+    """The block poked by ``effector``, with placeholder targets."""
+    particles = block()
+    centre = particles[:, :2].mean(axis=0)
+    start = np.array([*centre, particles[:, 2].max() + SPACING / 2])
+    return Datapoint(effector, "poke", effector, particles, SPACING**3, poke(depth), start, 0.0,
+                     particles, particles, np.zeros((32, 32)), centre)
+
+
+@pytest.fixture(scope="module")
+def rung0():
+    """(simulator, training, validation) at R0."""
+    simulator = Simulator(CONFIG)
+    same = [same_model_datapoint(untargeted(e, d), simulator, TRUTH)
+            for e, d in (("round", 0.008), ("rectangle", 0.008), ("cylinder", 0.006))]
+    return simulator, same[:2], same[2:]
+
+
+def test_every_loss_is_zero_at_the_truth_on_rung_0(rung0):
+    simulator, training, validation = rung0
+    ref = reference(simulator, training, validation, TRUTH, level=1)
+    assert set(ref["loss_at_truth_mm"]) == set(LADDER_LOSSES)
+    assert all(value == pytest.approx(0.0, abs=1e-9) for value in ref["loss_at_truth_mm"].values())
+    assert ref["val_heightmap_truth_mm"] == pytest.approx(0.0, abs=1e-9)
+    # the poke moves the block: doing nothing, or the hand-picked material, is measurably off
+    assert ref["val_heightmap_no_motion_mm"] > 20.0 and ref["val_heightmap_hand_picked_mm"] > 5.0
+
+
+def test_on_rung_0_every_loss_has_its_minimum_at_the_truth(rung0):
+    simulator, training, _ = rung0
+    minima = loss_minima(simulator, training[0], TRUTH)
+    assert len(minima) == len(SCAN_PARAMETERS) * len(LADDER_LOSSES)
+    assert (minima.argmin == minima.truth).all(), minima
+    assert (minima.loss_at_truth_mm < 1e-9).all()
+
+
+@pytest.mark.parametrize("loss", ["prt_emd", "pcd_cd"])
+def test_rung_0_recovers_young_modulus_and_yield_stress_from_50_percent_off(rung0, loss, tmp_path):
+    simulator, training, validation = rung0
+    start = TRUTH.replace(E=0.5 * TRUTH.E, yield_stress=1.5 * TRUTH.yield_stress)
+    summary = identify(tmp_path, 1, loss, training, validation, iterations=30, initial=start, truth=TRUTH,
+                       simulator=simulator, progress=io.StringIO())
+    assert summary["relative_error"]["E"] < 0.10
+    assert summary["relative_error"]["yield_stress"] < 0.10
+
+
+def fake_run(seed, estimate, loss_at_best):
+    labels = dict(rung="R0", level=1, loss="prt_emd", dataset="1-round", seed=seed)
+    summary = {**labels, "best": {"iteration": 2, "parameters": estimate, "validation": {"heightmap_mm": 100.0}}}
+    log = pd.DataFrame({"iteration": [0, 1, 2], "train_loss_mm": [900.0, 500.0, loss_at_best]}).assign(**labels)
+    return summary, log
+
+
+def test_ladder_table_has_a_row_per_identified_parameter_with_relative_errors():
+    truth = TRUTH.as_dict()
+    ref = {"truth": truth, "loss_at_truth_mm": {"prt_emd": 0.0}, "val_heightmap_hand_picked_mm": 300.0,
+           "val_heightmap_no_motion_mm": 900.0}
+    runs = [fake_run(s, {**truth, "E": truth["E"] * (1 + 0.1 * (s + 1))}, 40.0 + s) for s in (1, 0)]
+    table = ladder_table([s for s, _ in runs], pd.concat([log for _, log in runs]), {("R0", 1, "1-round"): ref})
+    assert list(table.columns) == list(COLUMNS) and len(table) == 2 * len(IDENTIFIED[1])
+    assert list(table.seed) == [0] * 4 + [1] * 4
+    e = table[table.parameter == "E"].set_index("seed")
+    assert e.rel_error.to_dict() == pytest.approx({0: 0.1, 1: 0.2})
+    assert e.loss_at_estimate_mm.to_dict() == {0: 40.0, 1: 41.0}
+    assert (table.loc[table.parameter != "E", "rel_error"] == 0).all()
+    assert recovery_summary(table).loc[("R0", 1, "prt_emd"), "E"] == pytest.approx(0.15)

@@ -1,0 +1,20 @@
+"""Identifiability ladder: the loss at the truth and the validation height-map distances of the truth, the
+hand-picked parameters and no motion, for one (rung, level, dataset)."""
+
+import json
+from pathlib import Path
+
+from dpsi.datapoint import load_datapoint
+from dpsi.identifiability import reference
+from dpsi.pointclouds import atomic_output
+from dpsi.provenance import recorded
+from dpsi.simulation import Simulator, SimulatorConfig
+from dpsi.twin import read_truth
+
+with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
+    truth = read_truth(Path(snakemake.input.truth[0]).parent)[0]["clay"]
+    result = reference(Simulator(SimulatorConfig(**snakemake.params.simulator)),
+                       [load_datapoint(f) for f in snakemake.input.training],
+                       [load_datapoint(f) for f in snakemake.input.validation], truth, int(snakemake.wildcards.level))
+    with atomic_output(snakemake.output[0]) as tmp:
+        tmp.write_text(json.dumps(result, indent=1))
