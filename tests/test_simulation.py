@@ -131,6 +131,17 @@ def test_a_second_precision_in_one_process_is_refused(sim):
         SimulatorConfig(precision="f16")
 
 
+def test_cuda_without_a_gpu_is_refused_rather_than_run_on_the_cpu():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", "from dpsi.simulation.runtime import ensure_taichi; ensure_taichi('cuda')"],
+                         capture_output=True, text=True)
+    if out.returncode == 0:
+        pytest.skip("this machine has a CUDA GPU")
+    assert "no usable 'cuda' device" in out.stderr
+
+
 def test_serial_loops_are_chosen_from_the_particle_count_unless_forced():
     assert SimulatorConfig().serial_for(2000) and not SimulatorConfig().serial_for(20000)
     assert not SimulatorConfig(arch="cuda").serial_for(2000)

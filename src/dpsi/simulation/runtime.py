@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 
 import taichi as ti
+from taichi.lang import impl
 
 _initialised: tuple[str, str] | None = None
 
@@ -36,4 +37,7 @@ def ensure_taichi(arch: str = "cpu", precision: str = "f64", threads: int | None
     if cache:
         options["offline_cache_file_path"] = cache
     ti.init(**options)
+    if impl.current_cfg().arch != archs[arch]:
+        raise RuntimeError(f"Taichi found no usable {arch!r} device here and fell back to "
+                           f"{impl.current_cfg().arch.name}; run on a machine with one, or ask for 'cpu'")
     _initialised = (arch, precision)
