@@ -1,58 +1,14 @@
 """The identifiability ladder (dpsi.identifiability): identification runs on three rungs of the twin that
 share datapoints and differ in how the targets come about: R0 same model, R1 reconstructed at the
 identification resolution, R2 the main pipeline's finer twin. `snakemake identifiability` builds the ladder of
-the config; `tables` and `figures` include the rungs listed in `tables_rungs` (R0 in the quick default)."""
+the config; `tables` and `figures` include the rungs and losses listed in `in_tables` (R0 in the quick default).
+"""
 
-import itertools
+
+include: "ladder_runs.smk"
+
 
 if "identifiability" in ANALYSES:
-    if "twin" not in config:
-        raise WorkflowError(
-            "analyses.identifiability needs a synthetic twin (the truth): add a `twin` section to the config"
-        )
-    LADDER = ANALYSES["identifiability"]
-    LADDER_ROOT = f"{RESULTS}/identifiability"
-    LADDER_RUN = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
-    LADDER_REFERENCE = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{dataset}}/reference.json"
-
-    def ladder_prepared(rung, ids):
-        """Prepared datapoints of a rung: R2 is the main pipeline's."""
-        if rung == "R2":
-            return prepared(ids)
-        return [f"{LADDER_ROOT}/{rung}/prepared/{i}.npz" for i in ids]
-
-    def ladder_runs(rungs):
-        """Folder → labels of every ladder run on `rungs`."""
-        runs = {}
-        for rung, level, loss, dataset, seed in itertools.product(
-            rungs, LADDER["levels"], LADDER["losses"], LADDER["datasets"], LADDER["seeds"]
-        ):
-            try:
-                training_ids(level, dataset), validation_ids(level)
-            except ValueError as err:
-                raise WorkflowError(f"analysis identifiability: {err}")
-            labels = dict(rung=rung, level=level, loss=loss, dataset=dataset, seed=seed)
-            runs[LADDER_RUN.format(**labels)] = labels
-        return runs
-
-    def ladder_references(runs):
-        return sorted(
-            {LADDER_REFERENCE.format(**labels) for labels in runs.values()}
-        )
-
-    LADDER_TABLES = {"identifiability": LADDER["rungs"]}
-    TABLES_RUNGS = LADDER.get("tables_rungs", LADDER["rungs"])
-    if list(TABLES_RUNGS) != list(LADDER["rungs"]):
-        LADDER_TABLES["identifiability_" + "-".join(TABLES_RUNGS)] = TABLES_RUNGS
-
-    def ladder_outputs(name):
-        return [f"results/tables/{name}.{s}" for s in ("csv", "md", "tex")] + [
-            f"results/figures/{name}.{s}" for s in ("png", "pdf")
-        ]
-
-    TABLES_LADDER = list(LADDER_TABLES)[-1]
-    ANALYSIS_TABLES += ladder_outputs(TABLES_LADDER)[:3]
-    ANALYSIS_FIGURES += ladder_outputs(TABLES_LADDER)[3:]
 
     rule ladder_same_model:
         input:
@@ -79,7 +35,9 @@ if "identifiability" in ANALYSES:
     rule ladder_reconstructed_twin:
         input:
             truth=truth_file(),
-            code=library("identifiability", "twin", "prepare", "reconstruction", "capture"),
+            code=library(
+                "identifiability", "twin", "prepare", "reconstruction", "capture"
+            ),
         output:
             prepared=f"{LADDER_ROOT}/R1/prepared/{{id}}.npz",
             raw=directory(f"{LADDER_ROOT}/R1/raw/{{id}}"),
@@ -143,11 +101,11 @@ if "identifiability" in ANALYSES:
     rule identifiability_results:
         input:
             summaries=lambda w: run_files(
-                ladder_runs(LADDER_TABLES[w.ladder]), "summary.json"
+                ladder_runs(*LADDER_TABLES[w.ladder]), "summary.json"
             ),
-            logs=lambda w: run_files(ladder_runs(LADDER_TABLES[w.ladder]), "log.csv"),
+            logs=lambda w: run_files(ladder_runs(*LADDER_TABLES[w.ladder]), "log.csv"),
             references=lambda w: ladder_references(
-                ladder_runs(LADDER_TABLES[w.ladder])
+                ladder_runs(*LADDER_TABLES[w.ladder])
             ),
             code=library("identifiability", "reporting"),
         output:
@@ -174,18 +132,13 @@ if "identifiability" in ANALYSES:
             mem_mb=1000,
             runtime=5,
         params:
-            labels=lambda w: list(ladder_runs(LADDER_TABLES[w.ladder]).values()),
+            labels=lambda w: list(ladder_runs(*LADDER_TABLES[w.ladder]).values()),
             references=lambda w: {
                 LADDER_REFERENCE.format(**labels): labels
-                for labels in ladder_runs(LADDER_TABLES[w.ladder]).values()
+                for labels in ladder_runs(*LADDER_TABLES[w.ladder]).values()
             },
         script:
             "../scripts/identifiability.py"
-
-    def bias_datapoints():
-        """The level-1 training datapoints of the ladder's datasets (the sources of bias are per datapoint)."""
-        ids = [i for d in LADDER["datasets"] for i in training_ids(min(LADDER["levels"]), d)]
-        return list(dict.fromkeys(ids))
 
     rule identifiability_bias:
         input:
@@ -195,8 +148,12 @@ if "identifiability" in ANALYSES:
             truth=truth_file(),
             code=library("identifiability", "identification", "simulation", "losses"),
         output:
-            sources=multiext("results/tables/identifiability_bias", ".csv", ".md", ".tex"),
-            minima=multiext("results/tables/identifiability_minima", ".csv", ".md", ".tex"),
+            sources=multiext(
+                "results/tables/identifiability_bias", ".csv", ".md", ".tex"
+            ),
+            minima=multiext(
+                "results/tables/identifiability_minima", ".csv", ".md", ".tex"
+            ),
         log:
             "logs/identifiability_bias.log",
         conda:
