@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from dpsi.bench import cached_kernels
+from dpsi.bench import cached_kernels, target_lines
 from dpsi.reporting.cost import COLUMNS, cost_table, iterations_total
 
 from conftest import TINY
@@ -75,3 +75,19 @@ def test_tiny_workflow_makes_the_cost_table(tiny_run):
     if n < settings["iterations"]:  # extrapolated: the mean measured iteration is the mean forward + backward
         per_iteration = table.total_min * 60 / settings["iterations"]
         assert np.allclose(per_iteration, table.forward_s + table.backward_s, rtol=1e-6)
+
+
+def test_bench_prints_each_figure_beside_its_target():
+    """poking-1 at 1.5 + 2.5 s meets the CPU's 4 s; flattening's 1100 MiB misses 1 GB; a warm first call
+    17 s beyond later ones misses 3 s; on the GPU the same record misses 1 s and its backward pass is
+    within 2× the forward."""
+    cpu = target_lines([record(), record("flattening")], "cpu")
+    assert len(cpu) == 5
+    by_label = {line.split("  target")[0].rsplit(None, 1)[0].strip(): line for line in cpu}
+    assert by_label["poking-1: forward + backward (s)"].endswith("target ≤ 4  met")
+    assert by_label["poking-1: first forward + backward beyond later ones, warm kernel cache (s)"].endswith("NOT met")
+    assert by_label["flattening: peak memory (MiB)"].endswith("target ≤ 1024  NOT met")
+    assert by_label["flattening: forward + backward (s)"].endswith("target ≤ 18  met")
+    gpu = {line.split("  target")[0].rsplit(None, 1)[0].strip(): line for line in target_lines([record()], "cuda")}
+    assert gpu["poking-1: forward + backward (s)"].endswith("target ≤ 1  NOT met")
+    assert gpu["poking-1: backward / forward"].endswith("target ≤ 2  met")

@@ -9,7 +9,8 @@ import pytest
 
 from dpsi.datapoint import Datapoint
 from dpsi.effectors import by_name
-from dpsi.identifiability import COLUMNS, LADDER_LOSSES, ladder_table, recovery_summary, reference, same_model_datapoint
+from dpsi.identifiability import (COLUMNS, LADDER_LOSSES, SCAN_PARAMETERS, ladder_table, loss_minima, recovery_summary,
+                                  reference, same_model_datapoint)
 from dpsi.identification import identify
 from dpsi.parameters import IDENTIFIED
 from dpsi.simulation import Simulator
@@ -42,6 +43,14 @@ def test_every_loss_is_zero_at_the_truth_on_rung_0(rung0):
     assert ref["val_heightmap_truth_mm"] == pytest.approx(0.0, abs=1e-9)
     # the poke moves the block: doing nothing, or the hand-picked material, is measurably off
     assert ref["val_heightmap_no_motion_mm"] > 20.0 and ref["val_heightmap_hand_picked_mm"] > 5.0
+
+
+def test_on_rung_0_every_loss_has_its_minimum_at_the_truth(rung0):
+    simulator, training, _ = rung0
+    minima = loss_minima(simulator, training[0], TRUTH)
+    assert len(minima) == len(SCAN_PARAMETERS) * len(LADDER_LOSSES)
+    assert (minima.argmin == minima.truth).all(), minima
+    assert (minima.loss_at_truth_mm < 1e-9).all()
 
 
 @pytest.mark.parametrize("loss", ["prt_emd", "pcd_cd"])

@@ -1,6 +1,6 @@
 """Benchmarks that print figures (not timed tests), and the measurement behind the cost table.
 
-    python -m dpsi.bench simulator [--json] [--density 4e7] [--motions poking-1 ...]
+    python -m dpsi.bench simulator [--json] [--density 4e7] [--motions poking-1 ...] [--arch cuda] [--precision f32]
     python -m dpsi.bench losses [--json] [--points 3000]
 
 The simulator benchmark runs each motion in a fresh process, so that peak memory is that motion's
@@ -8,6 +8,8 @@ own: a lump of clay (6 × 4.8 × 2.8 cm, ~1950 particles at 4e7/m³ like the pap
 filled at the given particle density, the hand-picked parameters, the motion's own effector. It times the
 first forward pass (which compiles, unless Taichi's offline cache already holds the kernels), the first
 backward pass, then forward + backward iterations, and says whether Taichi's offline cache was warm.
+Below its table it prints each figure beside its target (:data:`TARGETS`, for the CPU of the development
+machine or for an H100 GPU with ``--arch cuda``).
 """
 
 from __future__ import annotations
@@ -26,6 +28,19 @@ from .progress import Progress
 
 BENCH_MOTIONS = {"poking-1": "round", "poking-shifting-1": "round", "flattening": "cylinder"}
 """Motions of the cost study (SPEC §7.6) and the effector each is run with."""
+
+TARGETS = {
+    "cpu": {"poking-1": 4.0, "poking-shifting-1": 7.0, "flattening": 18.0, "cold": 20.0, "warm": 3.0,
+            "flattening_mib": 1024.0},
+    "cuda": {"poking-1": 1.0, "flattening": 5.0, "large": 3.0, "backward_ratio": 2.0, "cold": 20.0, "warm": 3.0},
+}
+"""Targets of the simulator issue (s, MiB): forward + backward per motion at ~2000 particles; on the GPU
+also at ≥ 60 000 particles ("large") and the backward pass at most this many times the forward; the extra
+time of a new process's first forward + backward with a cold or warm kernel cache; the peak memory of
+flattening on the CPU."""
+
+LARGE_SCENE = 60000
+"""Particles from which the GPU's large-scene target applies (the issue's 65k)."""
 
 SIMULATOR_KEYS = ("motion", "particles", "steps", "substeps", "compile_s", "forward_s", "backward_s",
                   "peak_rss_mb")
@@ -132,6 +147,29 @@ def run_isolated(motion: str, density: float, iterations: int = 1, simulator: di
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def target_lines(records: list[dict], arch: str) -> list[str]:
+    """Each measured figure of ``records`` beside its target for ``arch``: one line each, ending in
+    "met" or "NOT met"."""
+    goals = TARGETS[arch]
+    rows = []
+    for r in records:
+        name, total = r["motion"], r["forward_s"] + r["backward_s"]
+        if arch == "cuda" and r["particles"] >= LARGE_SCENE:
+            rows.append((f"{name} at {r['particles']} particles: forward + backward (s)", total, goals["large"]))
+        elif name in goals:
+            rows.append((f"{name}: forward + backward (s)", total, goals[name]))
+        if "backward_ratio" in goals:
+            rows.append((f"{name}: backward / forward", r["backward_s"] / r["forward_s"], goals["backward_ratio"]))
+        if r["taichi_cache"] in ("cold", "warm", "off"):
+            cache = "warm" if r["taichi_cache"] == "warm" else "cold"
+            rows.append((f"{name}: first forward + backward beyond later ones, {cache} kernel cache (s)",
+                         r["compile_s"], goals[cache]))
+        if name == "flattening" and "flattening_mib" in goals:
+            rows.append((f"{name}: peak memory (MiB)", r["peak_rss_mb"], goals["flattening_mib"]))
+    return [f"{label:<72} {value:8.2f}  target ≤ {goal:g}  {'met' if value <= goal else 'NOT met'}"
+            for label, value, goal in rows]
+
+
 def print_table(records: list[dict], keys) -> None:
     widths = [max(len(k), *(len(_fmt(r[k])) for r in records)) for k in keys]
     print("  ".join(k.rjust(w) for k, w in zip(keys, widths)))
@@ -151,6 +189,8 @@ def main(argv=None) -> None:
     sim.add_argument("--density", type=float, default=4e7, help="particles per m³ (default 4e7)")
     sim.add_argument("--motions", nargs="+", default=list(BENCH_MOTIONS), choices=list(BENCH_MOTIONS))
     sim.add_argument("--json", action="store_true", help="print one JSON list of records")
+    sim.add_argument("--arch", choices=sorted(TARGETS), default="cpu", help="where Taichi runs (default cpu)")
+    sim.add_argument("--precision", choices=["f64", "f32"], default="f64", help="floating point (default f64)")
     losses = sub.add_parser("losses", help="time of the EMD and Chamfer losses with gradient")
     losses.add_argument("--points", type=int, default=3000)
     losses.add_argument("--json", action="store_true")
@@ -167,16 +207,19 @@ def main(argv=None) -> None:
         config = SimulatorConfig(**json.loads(args.simulator))
         print(json.dumps(measure_simulation(args.motion, args.density, args.iterations, config)))
     elif args.what == "simulator":
+        settings = {"arch": args.arch, "precision": args.precision}
         records = []
         with Progress(len(args.motions), "benchmark") as bar:
             for k, motion in enumerate(args.motions, 1):
-                records.append(run_isolated(motion, args.density))
+                records.append({**run_isolated(motion, args.density, simulator=settings), **settings})
                 bar.update(k, f"{motion}: forward {records[-1]['forward_s']:.2f} s, "
                               f"backward {records[-1]['backward_s']:.2f} s")
         if args.json:
             print(json.dumps(records))
         else:
             print_table(records, (*SIMULATOR_KEYS, "first_forward_s", "first_backward_s", "taichi_cache"))
+            print(f"\ntargets ({args.arch}, {args.precision}):")
+            print("\n".join(target_lines(records, args.arch)))
     else:
         from .losses import bench_emd
 

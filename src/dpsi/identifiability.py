@@ -30,7 +30,7 @@ from dpsi.datapoint import Datapoint
 from dpsi.heightmap import heightmap_distance_mm
 from dpsi.identification import evaluate, scene, targets
 from dpsi.losses import loss_by_name, simulated_heightmap
-from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, Parameters
+from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, LOWER, UPPER, Parameters
 from dpsi.simulation import Simulator, SimulatorConfig
 
 RUNGS = {
@@ -40,8 +40,8 @@ RUNGS = {
 }
 """The rungs, from the easiest to the real pipeline."""
 
-LADDER_LOSSES = ("pcd_cd", "prt_cd", "pcd_emd", "prt_emd")
-"""The training losses whose value at the truth the ladder reports."""
+LADDER_LOSSES = ("pcd_cd", "prt_cd", "pcd_emd", "prt_emd", "heightmap")
+"""The training losses whose value at the truth the ladder reports: the four of SPEC §5 and the height map."""
 
 COLUMNS = ("rung", "level", "loss", "dataset", "seed", "parameter", "truth", "estimate", "rel_error",
            "loss_at_truth_mm", "loss_at_estimate_mm", "val_heightmap_mm", "val_heightmap_hand_picked_mm",
@@ -147,5 +147,55 @@ def recovery_summary(table: pd.DataFrame) -> pd.DataFrame:
     return table.groupby(["rung", "level", "loss", "parameter"])["rel_error"].median().unstack("parameter")
 
 
+SCAN_PARAMETERS = ("E", "yield_stress")
+SCAN_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0, 4.0)
+"""The one-parameter scans of :func:`loss_minima`: these parameters at these multiples of the truth."""
+
+
+def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: float) -> dict[str, float]:
+    """Where the distance between simulation and truth comes from, for one twin datapoint ``dp`` prepared by
+    the main pipeline and its twin ``ground_truth`` (:class:`dpsi.twin.GroundTruth`): the height-map distance
+    (mm) to the twin's true after surface of the captured target (``target``: capture and reconstruction of
+    the after state), and of simulations at the truth on this ``simulator`` started from the twin's own
+    particles (``twin_particles``: the simulator's resolution alone), from the true before shape filled at
+    ``density`` particles/m³ (``true_shape_filled``: adds the particle density), and from the reconstructed
+    before particles (``reconstructed``: adds the before shape's reconstruction; the pipeline)."""
+    from dpsi.reconstruction.filling import fill, particles_to_mesh  # open3d and pymeshlab
+
+    truth, true_hm = ground_truth.parameters, ground_truth.heightmap
+
+    def distance(particles: np.ndarray, volume: float) -> float:
+        fine = dataclasses.replace(scene(dp), particles=particles, particle_volume=volume)
+        final = simulator.forward(fine, truth, keep_substeps=False)
+        target = dp.heightmap_target()._replace(heights=true_hm, particle_size=volume ** (1 / 3))
+        return heightmap_distance_mm(simulated_heightmap(final, target), true_hm)
+
+    true_shape = particles_to_mesh(ground_truth.before_particles, ground_truth.particle_volume ** (1 / 3))
+    return {"target": heightmap_distance_mm(dp.heightmap, true_hm),
+            "twin_particles": distance(ground_truth.before_particles, ground_truth.particle_volume),
+            "true_shape_filled": distance(fill(true_shape, density), 1.0 / density),
+            "reconstructed": distance(dp.particles, dp.particle_volume)}
+
+
+def loss_minima(simulator: Simulator, dp: Datapoint, truth: Parameters,
+                losses: Sequence[str] = LADDER_LOSSES) -> pd.DataFrame:
+    """One-parameter scans through ``truth`` (:data:`SCAN_PARAMETERS` at :data:`SCAN_FACTORS` times the truth,
+    within their ranges) of each loss on ``dp``: per (parameter, loss) the value (SI) with the lowest loss and
+    the loss (mm) there and at the truth. A loss whose minimum is not at the truth is biased on these data,
+    whatever the optimiser does."""
+    rows = []
+    for name in SCAN_PARAMETERS:
+        true = getattr(truth, name)
+        values = [true * f for f in SCAN_FACTORS if LOWER[name] <= true * f <= UPPER[name]]
+        finals = [simulator.forward(scene(dp), truth.replace(**{name: v}), keep_substeps=False) for v in values]
+        for loss in losses:
+            scan = [loss_by_name(loss)(final, targets(dp))[0] for final in finals]
+            best = int(np.argmin(scan))
+            rows.append({"parameter": name, "loss": loss, "truth": true, "argmin": values[best],
+                         "loss_at_argmin_mm": scan[best], "loss_at_truth_mm": scan[values.index(true)]})
+    return pd.DataFrame(rows)
+
+
+
 __all__ = ["RUNGS", "LADDER_LOSSES", "COLUMNS", "check_rung", "same_model_datapoint", "reconstructed_twin_datapoint",
-           "level_truth", "reference", "run_rows", "RUN_LABELS", "ladder_table", "recovery_summary"]
+           "level_truth", "reference", "run_rows", "RUN_LABELS", "ladder_table", "recovery_summary", "SCAN_PARAMETERS", "SCAN_FACTORS", "bias_sources", "loss_minima"]

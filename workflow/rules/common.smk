@@ -88,12 +88,14 @@ def log_file(name):
     return f"{LOGS}/{name}.log"
 
 
-def table_files(name, caption):
-    """A table's CSV (in the report with ``caption``), Markdown and LaTeX files; scripts write the CSV's
-    path with dpsi.reporting.tables.write_table, which writes the other two beside it.
+def table_files(name, caption=None):
+    """A table's CSV (in the report with ``caption``, if given), Markdown and LaTeX files; scripts write the
+    CSV's path with dpsi.reporting.tables.write_table, which writes the other two beside it.
     """
     path = f"{TABLES_DIR}/{name}"
-    csv = report(f"{path}.csv", caption=caption, category="Tables")
+    csv = f"{path}.csv"
+    if caption:
+        csv = report(csv, caption=caption, category="Tables")
     return [csv, f"{path}.md", f"{path}.tex"]
 
 
@@ -273,42 +275,3 @@ def parameter_source_inputs(source):
             )
         return runs(level=2)
     return []
-
-
-# The identifiability ladder's helpers (identifiability.smk defines LADDER, LADDER_RUN and LADDER_REFERENCE).
-
-
-def ladder_prepared(rung, ids):
-    """Prepared datapoints of a rung: R2 is the main pipeline's."""
-    if rung == "R2":
-        return prepared(ids)
-    return [f"{LADDER_ROOT}/{rung}/prepared/{i}.npz" for i in ids]
-
-
-def ladder_runs(rungs):
-    """Folder → labels of every ladder run on `rungs` (each run's summary carries them too)."""
-    runs = {}
-    for rung, level, loss, dataset, seed in itertools.product(
-        rungs,
-        LADDER["levels"],
-        LADDER["losses"],
-        LADDER["datasets"],
-        LADDER["seeds"],
-    ):
-        try:
-            training_ids(level, dataset), validation_ids(level)
-        except ValueError as err:
-            raise WorkflowError(f"analysis identifiability: {err}")
-        labels = dict(rung=rung, level=level, loss=loss, dataset=dataset, seed=seed)
-        runs[LADDER_RUN.format(**labels)] = labels
-    return runs
-
-
-def ladder_references(runs):
-    return sorted({LADDER_REFERENCE.format(**labels) for labels in runs.values()})
-
-
-def ladder_outputs(name):
-    return table_files(name, "../report/identifiability.rst") + figure_files(
-        name, "../report/identifiability_figure.rst"
-    )

@@ -1,27 +1,14 @@
 """The identifiability ladder (dpsi.identifiability): identification runs on three rungs of the twin that
 share datapoints and differ in how the targets come about: R0 same model, R1 reconstructed at the
 identification resolution, R2 the main pipeline's finer twin. `snakemake identifiability` builds the ladder of
-the config; `tables` and `figures` include the rungs listed in `tables_rungs` (R0 in the quick default).
+the config; `tables` and `figures` include the rungs and losses listed in `in_tables` (R0 in the quick default).
 """
 
+
+include: "ladder_runs.smk"
+
+
 if "identifiability" in ANALYSES:
-    if "twin" not in config:
-        raise WorkflowError(
-            "analyses.identifiability needs a synthetic twin (the truth): add a `twin` section to the config"
-        )
-    LADDER = ANALYSES["identifiability"]
-    LADDER_ROOT = f"{RESULTS}/identifiability"
-    LADDER_RUN = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
-    LADDER_REFERENCE = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{dataset}}/reference.json"
-
-    LADDER_TABLES = {"identifiability": LADDER["rungs"]}
-    TABLES_RUNGS = LADDER.get("tables_rungs", LADDER["rungs"])
-    if list(TABLES_RUNGS) != list(LADDER["rungs"]):
-        LADDER_TABLES["identifiability_" + "-".join(TABLES_RUNGS)] = TABLES_RUNGS
-
-    TABLES_LADDER = list(LADDER_TABLES)[-1]
-    ANALYSIS_TABLES += ladder_outputs(TABLES_LADDER)[:3]
-    ANALYSIS_FIGURES += ladder_outputs(TABLES_LADDER)[3:]
 
     rule ladder_same_model:
         input:
@@ -112,10 +99,12 @@ if "identifiability" in ANALYSES:
     rule identifiability_results:
         input:
             summaries=lambda w: run_files(
-                ladder_runs(LADDER_TABLES[w.ladder]), "summary.json"
+                ladder_runs(*LADDER_TABLES[w.ladder]), "summary.json"
             ),
-            logs=lambda w: run_files(ladder_runs(LADDER_TABLES[w.ladder]), "log.csv"),
-            references=lambda w: ladder_references(ladder_runs(LADDER_TABLES[w.ladder])),
+            logs=lambda w: run_files(ladder_runs(*LADDER_TABLES[w.ladder]), "log.csv"),
+            references=lambda w: ladder_references(
+                ladder_runs(*LADDER_TABLES[w.ladder])
+            ),
             code=code("identifiability"),
         output:
             table=table_files("{ladder}", "../report/identifiability.rst"),
@@ -133,12 +122,37 @@ if "identifiability" in ANALYSES:
         params:
             references=lambda w: {
                 LADDER_REFERENCE.format(**labels): labels
-                for labels in ladder_runs(LADDER_TABLES[w.ladder]).values()
+                for labels in ladder_runs(*LADDER_TABLES[w.ladder]).values()
             },
         script:
             "../scripts/identifiability.py"
 
+    rule identifiability_bias:
+        input:
+            datapoints=prepared(bias_datapoints()),
+            reconstructed=ladder_prepared("R1", bias_datapoints()),
+            twin=[f"{RAW}/{i}" for i in bias_datapoints()],
+            truth=truth_file(),
+            code=code("identifiability_bias"),
+        output:
+            sources=table_files("identifiability_bias"),
+            minima=table_files("identifiability_minima"),
+        log:
+            log_file("identifiability_bias"),
+        conda:
+            "../envs/dpsi.yaml"
+        threads: 1
+        resources:
+            mem_mb=3000,
+            runtime=30,
+        params:
+            simulator=simulator_params(),
+            density=config["reconstruction"]["density"],
+        script:
+            "../scripts/identifiability_bias.py"
+
     rule identifiability:
         input:
             ladder_outputs("identifiability"),
+            rules.identifiability_bias.output,
         localrule: True

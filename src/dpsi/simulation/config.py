@@ -15,6 +15,13 @@ from ..motions import DT, Trajectory
 from ..parameters import STIFFEST, Parameters
 
 
+PRECISIONS = ("f64", "f32")
+
+SERIAL_BELOW_PARTICLES = 8000
+"""With ``SimulatorConfig.serial`` None, CPU loops run on one thread below this many particles: there a
+loop's work is too short to pay for starting threads (~80 µs a loop on the development machine)."""
+
+
 class SimulationError(RuntimeError):
     """A simulation could not run or went unstable; the message says where and with what parameters."""
 
@@ -42,15 +49,27 @@ class SimulatorConfig:
     step_dt: float = DT
     arch: str = "cpu"
     substep_memory_mb: float = 1200.0
-    serial: bool = True
-    """Run particle and grid loops on one thread: on small scenes this avoids the ~80 µs cost of
-    starting a parallel loop, which dominates when each loop does only a few hundred µs of work."""
+    serial: bool | None = None
+    """Run particle and grid loops on one thread (True), on all (False), or choose from the scene's
+    particle count (None): see :meth:`serial_for`."""
+    precision: str = "f64"
+    """Floating-point precision of the simulation, "f64" or "f32" (Taichi's default_fp: one per process)."""
 
     def __post_init__(self):
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.dx <= 0 or self.width <= 4 * self.dx or self.height <= 4 * self.dx:
             raise ValueError(f"simulator box {self.width}×{self.height} m is too small for cell {self.dx} m")
         if not 0 < self.cfl <= 1:
             raise ValueError(f"cfl must lie in (0, 1], got {self.cfl}")
+
+    def serial_for(self, particles: int) -> bool:
+        """Whether loops run on one thread for a scene of ``particles``: as ``serial`` says, or when it is
+        None, on the CPU below :data:`SERIAL_BELOW_PARTICLES` (never on a GPU, where one thread would do
+        all the work)."""
+        if self.serial is not None:
+            return self.serial
+        return self.arch == "cpu" and particles < SERIAL_BELOW_PARTICLES
 
     @property
     def grid_shape(self) -> tuple[int, int, int]:

@@ -8,6 +8,9 @@ import taichi as ti
 
 from ..effectors import BOX, BULLET, GRID, ROLLER
 
+TINY = 1e-30
+"""Added under the square root of a norm so that it and its derivative stay finite at zero."""
+
 NORMAL_STEP = 1e-4
 """Central-difference step (m) for effector normals."""
 
@@ -83,11 +86,13 @@ def effector_sdf(p, kind: ti.i32, size, sdf: ti.template(), lower, spacing):
 
 @ti.func
 def effector_normal(p, kind: ti.i32, size, sdf: ti.template(), lower, spacing):
-    """Outward unit normal ∇φ/‖∇φ‖ by central differences (effector frame)."""
-    n = ti.Vector.zero(ti.f64, 3)
-    for a in ti.static(range(3)):
-        e = ti.Vector.unit(3, a, ti.f64) * NORMAL_STEP
-        n[a] = effector_sdf(p + e, kind, size, sdf, lower, spacing) - effector_sdf(p - e, kind, size, sdf, lower, spacing)
+    """Outward unit normal ∇φ/‖∇φ‖ by central differences (effector frame). The six evaluations run in
+    a loop, so that the signed distance is compiled once."""
+    n = ti.Vector.zero(float, 3)
+    for q in range(6):
+        a, sign = q // 2, 1.0 - 2.0 * (q % 2)
+        e = ti.Vector([ti.select(a == b, sign * NORMAL_STEP, 0.0) for b in ti.static(range(3))])
+        n[a] += sign * effector_sdf(p + e, kind, size, sdf, lower, spacing)
     return n / ti.max(n.norm(), 1e-12)
 
 
@@ -107,9 +112,32 @@ def frictional_contact(v, v_obj, n, mu):
     result = v
     if vn < 0.0:
         vt = v_rel - vn * n
-        vt_norm = ti.sqrt(vt.dot(vt) + 1e-30)
+        vt_norm = ti.sqrt(vt.dot(vt) + TINY)
         if vt_norm <= -mu * vn:
             result = v_obj
         else:
             result = vt * (1.0 + mu * vn / vt_norm) + v_obj
     return result
+
+
+@ti.func
+def frictional_contact_adjoint(v, v_obj, n, mu, result_bar):
+    """Gradients (v̄, μ̄) of :func:`frictional_contact` given the gradient of its result (the body's
+    velocity and normal are not differentiated)."""
+    v_rel = v - v_obj
+    vn = v_rel.dot(n)
+    v_bar = result_bar
+    mu_bar = 0.0
+    if vn < 0.0:
+        vt = v_rel - vn * n
+        vt_norm = ti.sqrt(vt.dot(vt) + TINY)
+        if vt_norm <= -mu * vn:
+            v_bar = ti.Vector.zero(float, 3)
+        else:
+            scale_bar = vt.dot(result_bar)
+            mu_bar = scale_bar * vn / vt_norm
+            vn_bar = scale_bar * mu / vt_norm
+            norm_bar = -scale_bar * mu * vn / (vt_norm * vt_norm)
+            vt_bar = (1.0 + mu * vn / vt_norm) * result_bar + norm_bar * vt / vt_norm
+            v_bar = vt_bar + (vn_bar - n.dot(vt_bar)) * n
+    return v_bar, mu_bar

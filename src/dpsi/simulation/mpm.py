@@ -1,28 +1,29 @@
 """Differentiable 3D MLS-MPM (Hu et al. 2018) of an elastoplastic object on a table, pressed by a
 kinematic rigid effector (SPEC §4).
 
-One substep (state slot s → s + 1):
+One substep (state slot s → s + 1) is two kernels, :meth:`Simulator.tabulate_contact` (loop 1) and
+:meth:`Simulator.advance` (loops 2–5):
 
-1. ``contact_geometry`` – clear the grid; effector distance, normal and velocity at the nodes and
-   particles (geometry only: not differentiated).
-2. ``constitutive`` – trial deformation F_tr = (I + Δt C) F, its SVD, von Mises return mapping in
-   Hencky strain, the new F, and the fixed-corotated Kirchhoff stress as APIC affine momentum.
-3. ``particle_to_grid`` – APIC/MLS transfer of mass and momentum (quadratic B-splines).
-4. ``grid_update`` – velocities, gravity, frictional contact with table and effector, walls.
-5. ``grid_to_particle`` – velocities and affine matrices back to particles.
-6. ``particle_contact_and_advect`` – contact again at the particles, then advection.
+1. grid: clear, and tabulate effector distance, normal and velocity at the nodes;
+2. particles: effector contact geometry; trial deformation F_tr = (I + Δt C) F, its SVD, von Mises
+   return mapping in Hencky strain, the new F, and the fixed-corotated Kirchhoff stress as APIC affine
+   momentum;
+3. particles: APIC/MLS transfer of mass and momentum to the grid (quadratic B-splines);
+4. grid: velocities, gravity, frictional contact with table and effector, walls;
+5. particles: velocities and affine matrices back from the grid, contact with table and effector
+   again, advection.
 
-Reverse mode runs through small kernels, one per physical operation (``trial_deformation``,
-``return_mapping``, ``elastic_deformation``, ``elastic_stress``, ``grid_update``,
-``particle_contact_and_advect``), because Taichi's LLVM back end compiles a large reverse-mode kernel
-very slowly; the SVD and the two transfers have hand-written adjoints (``decompose_backward``,
-``particle_to_grid_adjoint``, ``grid_to_particle_adjoint``).
+The reverse mode is written by hand (Taichi's automatic one compiles slowly and adds every particle's
+contribution to a parameter into one shared number): per substep, :meth:`Simulator.tabulate_contact`
+and :meth:`Simulator.restore` recompute the grid of the forward pass from the substep's state and SVD,
+and :meth:`Simulator.adjoint` runs loops 2–5 backwards in three. Gradients of the state live in two slots (of the substep being
+differentiated and of the one after it). Gradients of the material parameters are summed per particle
+and those of the friction coefficients per grid node, and reduced once per backward pass.
 
-Gradients run backwards through all substeps of all steps. Memory: the particle state is kept at
-the start of every step (a checkpoint) and for every substep of the one step being differentiated;
-grid and stress are recomputed for each substep during the backward pass. When the whole trajectory's
-substep states (and SVDs) fit in ``SimulatorConfig.substep_memory_mb``, the forward pass keeps them
-all and the backward pass reloads each step instead of simulating it again.
+Memory: the particle state is kept at the start of every step (a checkpoint) and for every substep of
+the one step being differentiated. When the whole trajectory's substep states (and SVDs) fit in
+``SimulatorConfig.substep_memory_mb``, the forward pass keeps them all and the backward pass reloads each
+step instead of simulating it again.
 """
 
 
@@ -30,9 +31,11 @@ import numpy as np
 import taichi as ti
 
 from ..effectors import GRID, SDF_GRID_RESOLUTION, Effector
-from ..parameters import NAMES, Parameters
+from ..parameters import Parameters
 from .config import Scene, SimulationError, SimulatorConfig
-from .contact import effector_normal, effector_sdf, frictional_contact, rotation_z
+from .constitutive import (compose, compose_adjoint, lame_gradient, lame_parameters, plastic_flow,
+                           plastic_flow_adjoint, principal_stress, principal_stress_adjoint)
+from .contact import effector_normal, effector_sdf, frictional_contact, frictional_contact_adjoint, rotation_z
 from .runtime import ensure_taichi
 from .svd import svd_backward, warm_started_svd
 
@@ -50,10 +53,14 @@ STATE_WIDTH = 33
 """Floats per particle in a checkpoint: x (3), v (3), C (9), F (9), and the right singular vectors V (9)
 that warm-start the next step's first SVD."""
 
-
 SUBSTEP_WIDTH = 45
 """Floats per particle and substep kept for the backward pass: x, v, C, F (24) and the substep's SVD
 U (9), σ (3), V (9)."""
+
+MATERIAL_GRADIENTS = ("shear", "lam", "particle_mass", "yield_stress", "mu_table", "mu_effector")
+"""Order of the per-particle parameter gradients (the friction ones also per grid node, last two)."""
+
+NUMPY_FLOAT = {"f64": np.float64, "f32": np.float32}
 
 MIB = 2.0 ** 20
 
@@ -69,74 +76,76 @@ class Simulator:
 
     def __init__(self, config: "SimulatorConfig | None" = None):
         self.config = config or SimulatorConfig()
-        ensure_taichi(self.config.arch)
+        ensure_taichi(self.config.arch, self.config.precision)
         c = self.config
-        self.serial = c.serial
+        self.float = NUMPY_FLOAT[c.precision]
         self.dx = c.dx
         self.inv_dx = 1.0 / c.dx
         self.grid_shape = c.grid_shape
         self.slots = c.max_substeps + 1
-        n, f64 = c.max_particles, ti.f64
+        n = c.max_particles
 
-        scalar = lambda grad=False: ti.field(f64, shape=(), needs_grad=grad)  # noqa: E731
-        self.E, self.nu, self.rho = scalar(True), scalar(True), scalar(True)
-        self.yield_stress, self.mu_table, self.mu_effector = scalar(True), scalar(True), scalar(True)
-        self.shear, self.lam, self.particle_mass = scalar(True), scalar(True), scalar(True)
+        scalar = lambda: ti.field(float, shape=())  # noqa: E731
+        self.yield_stress, self.mu_table, self.mu_effector = scalar(), scalar(), scalar()
+        self.shear, self.lam, self.particle_mass = scalar(), scalar(), scalar()
         self.dt, self.particle_volume, self.table_z = scalar(), scalar(), scalar()
         self.n_particles = ti.field(ti.i32, shape=())
-        self.origin = ti.Vector.field(3, f64, shape=())
+        self.n_substeps = ti.field(ti.i32, shape=())
+        self.step = ti.field(ti.i32, shape=())
+        self.origin = ti.Vector.field(3, float, shape=())
         self.region_lo = ti.Vector.field(3, ti.i32, shape=())
         self.region_hi = ti.Vector.field(3, ti.i32, shape=())
 
         self.effector_kind = ti.field(ti.i32, shape=())
-        self.effector_size = ti.Vector.field(3, f64, shape=())
-        self.effector_lower = ti.Vector.field(3, f64, shape=())
-        self.effector_upper = ti.Vector.field(3, f64, shape=())
-        self.sdf = ti.field(f64, shape=(SDF_GRID_RESOLUTION,) * 3)
-        self.sdf_lower = ti.Vector.field(3, f64, shape=())
+        self.effector_size = ti.Vector.field(3, float, shape=())
+        self.effector_lower = ti.Vector.field(3, float, shape=())
+        self.effector_upper = ti.Vector.field(3, float, shape=())
+        self.sdf = ti.field(float, shape=(SDF_GRID_RESOLUTION,) * 3)
+        self.sdf_lower = ti.Vector.field(3, float, shape=())
         self.sdf_spacing = scalar()
-        self.tip = ti.Vector.field(3, f64, shape=c.max_steps + 1)
-        self.yaw = ti.field(f64, shape=c.max_steps + 1)
+        self.tip = ti.Vector.field(3, float, shape=c.max_steps + 1)
+        self.yaw = ti.field(float, shape=c.max_steps + 1)
 
         slots = (self.slots, n)
-        self.x = ti.Vector.field(3, f64, shape=slots, needs_grad=True)
-        self.v = ti.Vector.field(3, f64, shape=slots, needs_grad=True)
-        self.C = ti.Matrix.field(3, 3, f64, shape=slots, needs_grad=True)
-        self.F = ti.Matrix.field(3, 3, f64, shape=slots, needs_grad=True)
+        self.x = ti.Vector.field(3, float, shape=slots)
+        self.v = ti.Vector.field(3, float, shape=slots)
+        self.C = ti.Matrix.field(3, 3, float, shape=slots)
+        self.F = ti.Matrix.field(3, 3, float, shape=slots)
+        self.U = ti.Matrix.field(3, 3, float, shape=slots)
+        self.sigma = ti.Vector.field(3, float, shape=slots)
+        self.V = ti.Matrix.field(3, 3, float, shape=slots)
+        self.V_start = ti.Matrix.field(3, 3, float, shape=n)
+        self.affine = ti.Matrix.field(3, 3, float, shape=n)
+        self.p_phi = ti.field(float, shape=n)
+        self.p_normal = ti.Vector.field(3, float, shape=n)
+        self.p_v_effector = ti.Vector.field(3, float, shape=n)
 
-        self.F_trial = ti.Matrix.field(3, 3, f64, shape=n, needs_grad=True)
-        self.U = ti.Matrix.field(3, 3, f64, shape=slots, needs_grad=True)
-        self.sigma = ti.Vector.field(3, f64, shape=slots, needs_grad=True)
-        self.sigma_elastic = ti.Vector.field(3, f64, shape=n, needs_grad=True)
-        self.V_start = ti.Matrix.field(3, 3, f64, shape=n)
-        self.V = ti.Matrix.field(3, 3, f64, shape=slots, needs_grad=True)
-        self.affine = ti.Matrix.field(3, 3, f64, shape=n, needs_grad=True)
-        self.v_grid = ti.Vector.field(3, f64, shape=n, needs_grad=True)
-        self.p_phi = ti.field(f64, shape=n)
-        self.p_normal = ti.Vector.field(3, f64, shape=n)
-        self.p_v_effector = ti.Vector.field(3, f64, shape=n)
+        # gradients: of the state in two slots (substep s in slot s % 2), of the parameters per particle
+        self.x_bar = ti.Vector.field(3, float, shape=(2, n))
+        self.v_bar = ti.Vector.field(3, float, shape=(2, n))
+        self.C_bar = ti.Matrix.field(3, 3, float, shape=(2, n))
+        self.F_bar = ti.Matrix.field(3, 3, float, shape=(2, n))
+        self.material_bar = ti.Vector.field(len(MATERIAL_GRADIENTS), float, shape=n)
+        self.gradient_total = ti.Vector.field(len(MATERIAL_GRADIENTS), float, shape=())
 
         g = self.grid_shape
-        self.grid_m = ti.field(f64, shape=g, needs_grad=True)
-        self.grid_p = ti.Vector.field(3, f64, shape=g, needs_grad=True)
-        self.grid_v = ti.Vector.field(3, f64, shape=g, needs_grad=True)
-        self.g_phi = ti.field(f64, shape=g)
-        self.g_normal = ti.Vector.field(3, f64, shape=g)
-        self.g_v_effector = ti.Vector.field(3, f64, shape=g)
+        self.grid_m = ti.field(float, shape=g)
+        self.grid_p = ti.Vector.field(3, float, shape=g)
+        self.grid_v = ti.Vector.field(3, float, shape=g)
+        self.g_phi = ti.field(float, shape=g)
+        self.g_normal = ti.Vector.field(3, float, shape=g)
+        self.g_v_effector = ti.Vector.field(3, float, shape=g)
+        self.grid_m_bar = ti.field(float, shape=g)
+        self.grid_p_bar = ti.Vector.field(3, float, shape=g)
+        self.grid_v_bar = ti.Vector.field(3, float, shape=g)
+        self.friction_bar = ti.Vector.field(2, float, shape=g)
 
         self._params = None
         self._checkpoints = None
         self._substates = None
-        self._substep_buffer = np.empty(0)
+        self._substep_buffer = np.empty(0, dtype=self.float)
         self.substeps = 0
-
-    # ------------------------------------------------------------------ parameters
-    @ti.kernel
-    def material(self):
-        """Lamé parameters from Young's modulus and Poisson's ratio (SPEC §4, fixed), particle mass."""
-        self.shear[None] = self.E[None] / (2.0 * (1.0 + self.nu[None]))
-        self.lam[None] = self.E[None] * self.nu[None] / ((1.0 + self.nu[None]) * (1.0 - 2.0 * self.nu[None]))
-        self.particle_mass[None] = self.rho[None] * self.particle_volume[None]
+        self.serial = True
 
     # ------------------------------------------------------------------ effector pose
     @ti.func
@@ -154,7 +163,7 @@ class Simulator:
         rel = point - tip
         phi = 1.0
         normal = ti.Vector([0.0, 0.0, 1.0])
-        vel = ti.Vector.zero(ti.f64, 3)
+        vel = ti.Vector.zero(float, 3)
         local = rotation_z(-yaw) @ rel
         margin = 2.0 * self.dx
         if (local > self.effector_lower[None] - margin).all() and (local < self.effector_upper[None] + margin).all():
@@ -166,91 +175,73 @@ class Simulator:
                 vel = lin + ang * ti.Vector([-rel[1], rel[0], 0.0])
         return phi, normal, vel
 
-    # ------------------------------------------------------------------ substep: per-particle physics
-    # Each step of the constitutive update is a ti.func. The forward pass runs them fused in one kernel
-    # (fast); reverse mode differentiates them one small kernel at a time (fast to compile).
+    @ti.func
+    def substep_fraction(self, s):
+        """How far through the step the end of substep s lies."""
+        return (s + 1) / self.n_substeps[None]
+
+    @ti.func
+    def tabulate_node_contact(self, I, s):
+        """Clear node I of the grid and store the effector's distance, normal and velocity there."""
+        self.grid_m[I] = 0.0
+        self.grid_p[I] = ti.Vector.zero(float, 3)
+        node = self.origin[None] + I.cast(float) * self.dx
+        self.g_phi[I], self.g_normal[I], self.g_v_effector[I] = self.effector_contact(
+            node, self.step[None], self.substep_fraction(s))
+
+    @ti.func
+    def tabulate_particle_contact(self, s, p):
+        self.p_phi[p], self.p_normal[p], self.p_v_effector[p] = self.effector_contact(
+            self.x[s, p], self.step[None], self.substep_fraction(s))
+
+    # ------------------------------------------------------------------ per-particle physics
     @ti.func
     def trial(self, s, p):
-        return (ti.Matrix.identity(ti.f64, 3) + self.dt[None] * self.C[s, p]) @ self.F[s, p]
+        return (ti.Matrix.identity(float, 3) + self.dt[None] * self.C[s, p]) @ self.F[s, p]
 
     @ti.func
-    def plastic_flow(self, sigma):
-        """Singular values after projecting the trial Hencky strain onto the von Mises surface."""
-        eps = ti.log(ti.max(sigma, 1e-8))
-        eps_dev = eps - eps.sum() / 3.0
-        dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + 1e-30)
-        plastic = ti.max(dev_norm - self.yield_stress[None] / (2.0 * self.shear[None]), 0.0)
-        return ti.exp(eps - plastic / dev_norm * eps_dev)
+    def stress_scale(self):
+        """4 Δt V_p / Δx², the factor of the Kirchhoff stress in the APIC affine momentum (m³ s / m²)."""
+        return 4.0 * self.dt[None] * self.inv_dx * self.inv_dx * self.particle_volume[None]
 
     @ti.func
-    def rebuild(self, u, sig, v):
-        """U diag(sig) Vᵀ as a sum of outer products of the columns."""
-        out = ti.Matrix.zero(ti.f64, 3, 3)
-        for a in ti.static(range(3)):
-            out += sig[a] * ti.Vector([u[0, a], u[1, a], u[2, a]]).outer_product(ti.Vector([v[0, a], v[1, a], v[2, a]]))
-        return out
-
-    @ti.func
-    def affine_momentum(self, s, p, u, sig):
+    def affine_momentum(self, s, p, u, elastic):
         """APIC affine momentum m C − (4Δt/Δx²) V_p τ with the fixed-corotated Kirchhoff stress
         τ = 2μ(F − R)Fᵀ + λ(J − 1)J I = U diag(2μ(σ − 1)σ + λ(J − 1)J) Uᵀ."""
-        J = sig[0] * sig[1] * sig[2]
-        principal = 2.0 * self.shear[None] * (sig - 1.0) * sig + self.lam[None] * (J - 1.0) * J
-        tau = self.rebuild(u, principal, u)
-        scale = 4.0 * self.dt[None] * self.inv_dx * self.inv_dx * self.particle_volume[None]
-        return self.particle_mass[None] * self.C[s, p] - scale * tau
+        tau = compose(u, principal_stress(elastic, self.shear[None], self.lam[None]), u)
+        return self.particle_mass[None] * self.C[s, p] - self.stress_scale() * tau
 
-    @ti.kernel
-    def constitutive(self, s: ti.i32):
-        """Forward pass of the whole constitutive update: F_tr, its SVD (kept per substep for the
-        backward pass; warm-started from the previous substep's V), plastic flow, the new F and the
-        affine momentum. The SVD makes this the one kernel heavy enough to be worth starting threads for,
-        whatever ``serial`` says."""
-        for p in range(self.n_particles[None]):
-            previous = self.V_start[p]
-            if s > 0:
-                previous = self.V[s - 1, p]
-            u, sigma, v = warm_started_svd(self.trial(s, p), previous)
-            self.U[s, p], self.V[s, p], self.sigma[s, p] = u, v, sigma
-            elastic = self.plastic_flow(sigma)
-            self.sigma_elastic[p] = elastic
-            self.F[s + 1, p] = self.rebuild(u, elastic, v)
-            self.affine[p] = self.affine_momentum(s, p, u, elastic)
+    @ti.func
+    def constitutive_adjoint(self, s, p, affine_bar):
+        """Gradients of everything the constitutive update of substep s reads (C, F at slot s and the
+        material parameters), given those of the affine momentum and of F at slot s + 1. Adds the
+        parameter gradients to particle p's sums; returns (C̄, F̄) at slot s."""
+        u, sigma, v = self.U[s, p], self.sigma[s, p], self.V[s, p]
+        shear, lam, ys = self.shear[None], self.lam[None], self.yield_stress[None]
+        elastic = plastic_flow(sigma, ys, shear)
+        principal = principal_stress(elastic, shear, lam)
+        tau_bar = -self.stress_scale() * affine_bar
+        u_bar, principal_bar, u_bar_transposed = compose_adjoint(u, principal, u, tau_bar)  # τ = U P Uᵀ
+        elastic_bar, shear_bar, lam_bar = principal_stress_adjoint(elastic, shear, lam, principal_bar)
+        next_u_bar, next_elastic_bar, v_bar = compose_adjoint(u, elastic, v, self.F_bar[(s + 1) % 2, p])
+        sigma_bar, ys_bar, flow_shear_bar = plastic_flow_adjoint(sigma, ys, shear, elastic_bar + next_elastic_bar)
+        trial_bar = svd_backward(u, sigma, v, u_bar + u_bar_transposed + next_u_bar, sigma_bar, v_bar)
+        mass_bar = (self.C[s, p] * affine_bar).sum()
+        self.add_material_bar(p, ti.Vector([shear_bar + flow_shear_bar, lam_bar, mass_bar, ys_bar, 0.0, 0.0]))
+        C_bar = self.particle_mass[None] * affine_bar + self.dt[None] * trial_bar @ self.F[s, p].transpose()
+        F_bar = (ti.Matrix.identity(float, 3) + self.dt[None] * self.C[s, p]).transpose() @ trial_bar
+        return C_bar, F_bar
 
-    @ti.kernel
-    def trial_deformation(self, s: ti.i32):
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            self.F_trial[p] = self.trial(s, p)
+    @ti.func
+    def add_material_bar(self, p, bar):
+        """Add to particle p's parameter gradients (p is one thread's own: no atomic add needed)."""
+        self.material_bar[p] = self.material_bar[p] + bar
 
-    @ti.kernel
-    def decompose_backward(self, s: ti.i32):
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            self.F_trial.grad[p] += svd_backward(self.U[s, p], self.sigma[s, p], self.V[s, p],
-                                                 self.U.grad[s, p], self.sigma.grad[s, p], self.V.grad[s, p])
-
-    @ti.kernel
-    def return_mapping(self, s: ti.i32):
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            self.sigma_elastic[p] = self.plastic_flow(self.sigma[s, p])
-
-    @ti.kernel
-    def elastic_deformation(self, s: ti.i32):
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            self.F[s + 1, p] = self.rebuild(self.U[s, p], self.sigma_elastic[p], self.V[s, p])
-
-    @ti.kernel
-    def elastic_stress(self, s: ti.i32):
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            self.affine[p] = self.affine_momentum(s, p, self.U[s, p], self.sigma_elastic[p])
-
-    # ------------------------------------------------------------------ substep: transfers
-    # Particle-grid transfers have hand-written adjoints: Taichi's reverse mode of the unrolled
-    # 27-node loop takes minutes to compile, and that of a rolled loop runs 13 times slower.
+    # ------------------------------------------------------------------ particle–grid transfers
+    # Loops over the 27 stencil nodes: unrolled, the adjoint kernel alone took 65 s to compile (CPU time,
+    # development machine), rolled 4.4 s. The forward transfers, the hot serial loops, unroll 9 of the
+    # 27 nodes: 2.4 s to compile advance (7.1 s unrolled, 1.1 s rolled), 0.26 ms a substep at 2038
+    # particles (0.21 ms unrolled, 0.40 ms rolled).
     @ti.func
     def stencil(self, x):
         """The 3×3×3 stencil of position ``x``: its base node, the particle's offset fx from it (cells),
@@ -258,9 +249,9 @@ class Simulator:
         its derivative with respect to d. Computed once per particle, used for all 27 nodes."""
         X = (x - self.origin[None]) * self.inv_dx
         base = ti.min(ti.max(ti.cast(X - 0.5, ti.i32), 0), ti.Vector(self.grid_shape) - 3)
-        fx = X - base.cast(ti.f64)
-        W = ti.Matrix.zero(ti.f64, 3, 3)
-        D = ti.Matrix.zero(ti.f64, 3, 3)
+        fx = X - base.cast(float)
+        W = ti.Matrix.zero(float, 3, 3)
+        D = ti.Matrix.zero(float, 3, 3)
         for o, a in ti.static(ti.ndrange(3, 3)):
             d = o - fx[a]
             if ti.static(o == 1):
@@ -270,132 +261,233 @@ class Simulator:
         return base, fx, W, D
 
     @ti.func
-    def stencil_node(self, base, fx, W, D, i: ti.template(), j: ti.template(), k: ti.template()):
+    def stencil_node(self, base, fx, W, D, i, j, k):
         """Node (i, j, k) of a :meth:`stencil`: its index, weight, offset from the particle (m), and the
         weight's gradient with respect to the particle position (1/m)."""
         w = W[i, 0] * W[j, 1] * W[k, 2]
         grad_w = -self.inv_dx * ti.Vector([D[i, 0] * W[j, 1] * W[k, 2], W[i, 0] * D[j, 1] * W[k, 2],
                                            W[i, 0] * W[j, 1] * D[k, 2]])
         offset = ti.Vector([i, j, k])
-        return base + offset, w, (offset.cast(ti.f64) - fx) * self.dx, grad_w
+        return base + offset, w, (offset.cast(float) - fx) * self.dx, grad_w
 
-    @ti.kernel
-    def particle_to_grid(self, s: ti.i32):
+    @ti.func
+    def particle_to_grid(self, s, p):
         """grid momentum += w (m v + A (x_i − x_p)), grid mass += w m, A the affine momentum."""
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            mass, v, A = self.particle_mass[None], self.v[s, p], self.affine[p]
-            base, fx, W, D = self.stencil(self.x[s, p])
-            for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+        mass, v, A = self.particle_mass[None], self.v[s, p], self.affine[p]
+        base, fx, W, D = self.stencil(self.x[s, p])
+        for i in range(3):
+            for j, k in ti.static(ti.ndrange(3, 3)):
                 node, w, dpos, _ = self.stencil_node(base, fx, W, D, i, j, k)
                 self.grid_p[node] += w * (mass * v + A @ dpos)
                 self.grid_m[node] += w * mass
 
-    @ti.kernel
-    def particle_to_grid_adjoint(self, s: ti.i32):
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            mass, v, A = self.particle_mass[None], self.v[s, p], self.affine[p]
-            x_bar, v_bar, m_bar = ti.Vector.zero(ti.f64, 3), ti.Vector.zero(ti.f64, 3), 0.0
-            A_bar = ti.Matrix.zero(ti.f64, 3, 3)
-            base, fx, W, D = self.stencil(self.x[s, p])
-            for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
-                node, w, dpos, grad_w = self.stencil_node(base, fx, W, D, i, j, k)
-                p_bar, m_node_bar = self.grid_p.grad[node], self.grid_m.grad[node]
-                v_bar += w * mass * p_bar
-                A_bar += w * p_bar.outer_product(dpos)
-                m_bar += w * (v.dot(p_bar) + m_node_bar)
-                x_bar += (p_bar.dot(mass * v + A @ dpos) + m_node_bar * mass) * grad_w - w * (A.transpose() @ p_bar)
-            self.x.grad[s, p] += x_bar
-            self.v.grad[s, p] += v_bar
-            self.affine.grad[p] += A_bar
-            self.particle_mass.grad[None] += m_bar
+    @ti.func
+    def particle_to_grid_adjoint(self, s, p):
+        """Gradients (x̄, v̄, Ā, m̄) of :meth:`particle_to_grid` from those of grid momentum and mass."""
+        mass, v, A = self.particle_mass[None], self.v[s, p], self.affine[p]
+        x_bar, v_bar, m_bar = ti.Vector.zero(float, 3), ti.Vector.zero(float, 3), 0.0
+        A_bar = ti.Matrix.zero(float, 3, 3)
+        base, fx, W, D = self.stencil(self.x[s, p])
+        for i, j, k in ti.ndrange(3, 3, 3):
+            node, w, dpos, grad_w = self.stencil_node(base, fx, W, D, i, j, k)
+            p_bar, m_node_bar = self.grid_p_bar[node], self.grid_m_bar[node]
+            v_bar += w * mass * p_bar
+            A_bar += w * p_bar.outer_product(dpos)
+            m_bar += w * (v.dot(p_bar) + m_node_bar)
+            x_bar += (p_bar.dot(mass * v + A @ dpos) + m_node_bar * mass) * grad_w - w * (A.transpose() @ p_bar)
+        return x_bar, v_bar, A_bar, m_bar
 
-    @ti.kernel
-    def grid_to_particle(self, s: ti.i32):
+    @ti.func
+    def grid_to_particle(self, s, p):
         """v = Σ w v_i and C = (4/Δx²) Σ w v_i (x_i − x_p)ᵀ."""
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            v = ti.Vector.zero(ti.f64, 3)
-            C = ti.Matrix.zero(ti.f64, 3, 3)
-            base, fx, W, D = self.stencil(self.x[s, p])
-            for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+        v = ti.Vector.zero(float, 3)
+        C = ti.Matrix.zero(float, 3, 3)
+        base, fx, W, D = self.stencil(self.x[s, p])
+        for i in range(3):
+            for j, k in ti.static(ti.ndrange(3, 3)):
                 node, w, dpos, _ = self.stencil_node(base, fx, W, D, i, j, k)
                 v += w * self.grid_v[node]
                 C += (4.0 * self.inv_dx * self.inv_dx * w) * self.grid_v[node].outer_product(dpos)
-            self.v_grid[p] = v
-            self.C[s + 1, p] = C
-
-    @ti.kernel
-    def grid_to_particle_adjoint(self, s: ti.i32):
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            v_bar, C_bar = self.v_grid.grad[p], self.C.grad[s + 1, p]
-            x_bar = ti.Vector.zero(ti.f64, 3)
-            base, fx, W, D = self.stencil(self.x[s, p])
-            for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
-                node, w, dpos, grad_w = self.stencil_node(base, fx, W, D, i, j, k)
-                g_v = self.grid_v[node]
-                scale = 4.0 * self.inv_dx * self.inv_dx
-                self.grid_v.grad[node] += w * v_bar + scale * w * (C_bar @ dpos)
-                x_bar += (g_v.dot(v_bar) + scale * g_v.dot(C_bar @ dpos)) * grad_w - scale * w * (C_bar.transpose() @ g_v)
-            self.x.grad[s, p] += x_bar
-
-    # ------------------------------------------------------------------ substep: grid and contact
-    @ti.kernel
-    def contact_geometry(self, s: ti.i32, step: ti.i32, fraction: ti.f64):
-        """Clear the grid and tabulate effector contact at nodes and particles (not differentiated)."""
-        ti.loop_config(serialize=self.serial)
-        for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
-            I = ti.Vector([i, j, k])
-            self.grid_m[I] = 0.0
-            self.grid_p[I] = ti.Vector.zero(ti.f64, 3)
-            node = self.origin[None] + I.cast(ti.f64) * self.dx
-            self.g_phi[I], self.g_normal[I], self.g_v_effector[I] = self.effector_contact(node, step, fraction)
-        ti.loop_config(serialize=self.serial)
-        for p in range(self.n_particles[None]):
-            self.p_phi[p], self.p_normal[p], self.p_v_effector[p] = self.effector_contact(self.x[s, p], step, fraction)
+        return v, C
 
     @ti.func
-    def wall(self, I, v):
-        """Zero the velocity components that point out of the box at nodes near its faces."""
+    def grid_to_particle_adjoint(self, s, p, v_bar, C_bar):
+        """Adds the gradients of :meth:`grid_to_particle` to the grid velocities' and returns x̄."""
+        x_bar = ti.Vector.zero(float, 3)
+        scale = 4.0 * self.inv_dx * self.inv_dx
+        base, fx, W, D = self.stencil(self.x[s, p])
+        for i, j, k in ti.ndrange(3, 3, 3):
+            node, w, dpos, grad_w = self.stencil_node(base, fx, W, D, i, j, k)
+            g_v = self.grid_v[node]
+            self.grid_v_bar[node] += w * v_bar + scale * w * (C_bar @ dpos)
+            x_bar += (g_v.dot(v_bar) + scale * g_v.dot(C_bar @ dpos)) * grad_w - scale * w * (C_bar.transpose() @ g_v)
+        return x_bar
+
+    @ti.func
+    def grid_velocity(self, s, p):
+        """Σ w v_i: the particle's velocity interpolated from the grid."""
+        v = ti.Vector.zero(float, 3)
+        base, fx, W, D = self.stencil(self.x[s, p])
+        for i, j, k in ti.ndrange(3, 3, 3):
+            node, w, _, _ = self.stencil_node(base, fx, W, D, i, j, k)
+            v += w * self.grid_v[node]
+        return v
+
+    # ------------------------------------------------------------------ contact
+    @ti.func
+    def walled(self, I, v, w):
+        """``w`` with the components zeroed in which velocity ``v`` at node I points out of the box near
+        its faces (the walls: applied to v itself, and to its gradient)."""
         return ti.Vector([
             ti.select(((I[d] < WALL_CELLS) & (v[d] < 0.0))
-                      | ((I[d] >= ti.static(self.grid_shape[d] - WALL_CELLS)) & (v[d] > 0.0)), 0.0, v[d])
+                      | ((I[d] >= ti.static(self.grid_shape[d] - WALL_CELLS)) & (v[d] > 0.0)), 0.0, w[d])
             for d in ti.static(range(3))])
 
+    @ti.func
+    def node_contact(self, I):
+        """Node I's velocity before contact (from momentum, mass and gravity), after the table, and after
+        the effector."""
+        free = self.grid_p[I] / self.grid_m[I] + self.dt[None] * ti.Vector([0.0, 0.0, GRAVITY])
+        on_table = self.origin[None][2] + I[2] * self.dx <= self.table_z[None]
+        after_table = free
+        if on_table:
+            after_table = frictional_contact(free, ti.Vector.zero(float, 3), ti.Vector([0.0, 0.0, 1.0]), self.mu_table[None])
+        after_effector = after_table
+        if self.g_phi[I] <= 0.0:
+            after_effector = frictional_contact(after_table, self.g_v_effector[I], self.g_normal[I], self.mu_effector[None])
+        return free, on_table, after_table, after_effector
+
+    @ti.func
+    def update_node(self, I):
+        if self.grid_m[I] > 0.0:
+            _, _, _, after_effector = self.node_contact(I)
+            self.grid_v[I] = self.walled(I, after_effector, after_effector)
+
+    @ti.func
+    def update_node_adjoint(self, I):
+        """Gradients of node I's momentum and mass from that of its velocity, which it then clears; adds
+        the friction coefficients' gradients to the node's sums."""
+        p_bar, m_bar = ti.Vector.zero(float, 3), 0.0
+        if self.grid_m[I] > 0.0:
+            free, on_table, after_table, after_effector = self.node_contact(I)
+            bar = self.walled(I, after_effector, self.grid_v_bar[I])
+            mu_effector_bar, mu_table_bar = 0.0, 0.0
+            if self.g_phi[I] <= 0.0:
+                bar, mu_effector_bar = frictional_contact_adjoint(after_table, self.g_v_effector[I], self.g_normal[I],
+                                                                  self.mu_effector[None], bar)
+            if on_table:
+                bar, mu_table_bar = frictional_contact_adjoint(free, ti.Vector.zero(float, 3),
+                                                               ti.Vector([0.0, 0.0, 1.0]), self.mu_table[None], bar)
+            p_bar = bar / self.grid_m[I]
+            m_bar = -bar.dot(self.grid_p[I]) / (self.grid_m[I] * self.grid_m[I])
+            self.friction_bar[I] = self.friction_bar[I] + ti.Vector([mu_table_bar, mu_effector_bar])
+        self.grid_p_bar[I], self.grid_m_bar[I] = p_bar, m_bar
+        self.grid_v_bar[I] = ti.Vector.zero(float, 3)  # consumed: zero again for the next substep
+
+    @ti.func
+    def particle_contact(self, s, p, v):
+        """Particle velocity ``v`` after the table and after the effector."""
+        after_table = v
+        if self.x[s, p][2] <= self.table_z[None]:
+            after_table = frictional_contact(v, ti.Vector.zero(float, 3), ti.Vector([0.0, 0.0, 1.0]), self.mu_table[None])
+        after_effector = after_table
+        if self.p_phi[p] <= 0.0:
+            after_effector = frictional_contact(after_table, self.p_v_effector[p], self.p_normal[p], self.mu_effector[None])
+        return after_table, after_effector
+
+    @ti.func
+    def particle_contact_adjoint(self, s, p, v, bar):
+        """Gradient of the velocity ``v`` before :meth:`particle_contact` from that after it; adds the
+        friction coefficients' gradients to the particle's sums."""
+        after_table, _ = self.particle_contact(s, p, v)
+        v_bar = bar
+        mu_effector_bar, mu_table_bar = 0.0, 0.0
+        if self.p_phi[p] <= 0.0:
+            v_bar, mu_effector_bar = frictional_contact_adjoint(after_table, self.p_v_effector[p], self.p_normal[p],
+                                                                self.mu_effector[None], v_bar)
+        if self.x[s, p][2] <= self.table_z[None]:
+            v_bar, mu_table_bar = frictional_contact_adjoint(v, ti.Vector.zero(float, 3), ti.Vector([0.0, 0.0, 1.0]),
+                                                             self.mu_table[None], v_bar)
+        self.add_material_bar(p, ti.Vector([0.0, 0.0, 0.0, 0.0, mu_table_bar, mu_effector_bar]))
+        return v_bar
+
+    # ------------------------------------------------------------------ substep kernels
     @ti.kernel
-    def grid_update(self):
-        ti.loop_config(serialize=self.serial)
+    def tabulate_contact(self, s: ti.i32, serial: ti.template()):
+        """Start substep s: clear the grid, tabulate the effector's contact geometry at the nodes and the
+        particles (a kernel of its own, shared by :meth:`advance` and :meth:`restore`: the effector's
+        shapes are most of the compile time)."""
+        ti.loop_config(serialize=serial)
         for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
-            I = ti.Vector([i, j, k])
-            if self.grid_m[I] > 0.0:
-                up = ti.Vector([0.0, 0.0, 1.0])
-                still = ti.Vector.zero(ti.f64, 3)
-                free = self.grid_p[I] / self.grid_m[I] + self.dt[None] * ti.Vector([0.0, 0.0, GRAVITY])
-                on_table = self.origin[None][2] + I[2] * self.dx <= self.table_z[None]
-                after_table = ti.select(on_table, frictional_contact(free, still, up, self.mu_table[None]), free)
-                after_effector = ti.select(
-                    self.g_phi[I] <= 0.0,
-                    frictional_contact(after_table, self.g_v_effector[I], self.g_normal[I], self.mu_effector[None]),
-                    after_table)
-                self.grid_v[I] = self.wall(I, after_effector)
+            self.tabulate_node_contact(ti.Vector([i, j, k]), s)
+        ti.loop_config(serialize=serial)
+        for p in range(self.n_particles[None]):
+            self.tabulate_particle_contact(s, p)
 
     @ti.kernel
-    def particle_contact_and_advect(self, s: ti.i32):
-        """Collide particles with the table and the effector again, then move them."""
-        ti.loop_config(serialize=self.serial)
+    def advance(self, s: ti.i32, serial: ti.template()):
+        """Substep s after :meth:`tabulate_contact`: state slot s → s + 1 (loops 2–5 of the module
+        docstring). The SVD makes the constitutive loop heavy enough to be worth starting threads for,
+        whatever ``serial`` says."""
         for p in range(self.n_particles[None]):
-            up = ti.Vector([0.0, 0.0, 1.0])
-            still = ti.Vector.zero(ti.f64, 3)
-            x, v = self.x[s, p], self.v_grid[p]
-            after_table = ti.select(x[2] <= self.table_z[None], frictional_contact(v, still, up, self.mu_table[None]), v)
-            after_effector = ti.select(
-                self.p_phi[p] <= 0.0,
-                frictional_contact(after_table, self.p_v_effector[p], self.p_normal[p], self.mu_effector[None]),
-                after_table)
-            self.v[s + 1, p] = after_effector
-            self.x[s + 1, p] = x + self.dt[None] * after_effector
+            previous = self.V_start[p]
+            if s > 0:
+                previous = self.V[s - 1, p]
+            u, sigma, v = warm_started_svd(self.trial(s, p), previous)
+            self.U[s, p], self.V[s, p], self.sigma[s, p] = u, v, sigma
+            elastic = plastic_flow(sigma, self.yield_stress[None], self.shear[None])
+            self.F[s + 1, p] = compose(u, elastic, v)
+            self.affine[p] = self.affine_momentum(s, p, u, elastic)
+        ti.loop_config(serialize=serial)
+        for p in range(self.n_particles[None]):
+            self.particle_to_grid(s, p)
+        ti.loop_config(serialize=serial)
+        for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
+            self.update_node(ti.Vector([i, j, k]))
+        ti.loop_config(serialize=serial)
+        for p in range(self.n_particles[None]):
+            v, self.C[s + 1, p] = self.grid_to_particle(s, p)
+            _, after = self.particle_contact(s, p, v)
+            self.v[s + 1, p] = after
+            self.x[s + 1, p] = self.x[s, p] + self.dt[None] * after
+
+    @ti.kernel
+    def restore(self, s: ti.i32, serial: ti.template()):
+        """After :meth:`tabulate_contact`, recompute the grid of substep s (and the affine momenta the
+        adjoint reads) from the state at slot s and the substep's SVD."""
+        ti.loop_config(serialize=serial)
+        for p in range(self.n_particles[None]):
+            elastic = plastic_flow(self.sigma[s, p], self.yield_stress[None], self.shear[None])
+            self.affine[p] = self.affine_momentum(s, p, self.U[s, p], elastic)
+            self.particle_to_grid(s, p)
+        ti.loop_config(serialize=serial)
+        for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
+            self.update_node(ti.Vector([i, j, k]))
+
+    @ti.kernel
+    def adjoint(self, s: ti.i32, serial: ti.template()):
+        """Gradients of the state at slot s from those at slot s + 1, through substep s (after
+        :meth:`restore`): advection, particle contact and grid-to-particle; the grid update; the
+        particle-to-grid transfer and the constitutive update. Like the SVD of :meth:`advance`, the last
+        loop is heavy enough to be worth starting threads for, whatever ``serial`` says."""
+        now, later = s % 2, (s + 1) % 2
+        ti.loop_config(serialize=serial)
+        for p in range(self.n_particles[None]):
+            x_later_bar = self.x_bar[later, p]
+            velocity_bar = self.v_bar[later, p] + self.dt[None] * x_later_bar
+            v_bar = self.particle_contact_adjoint(s, p, self.grid_velocity(s, p), velocity_bar)
+            self.x_bar[now, p] = x_later_bar + self.grid_to_particle_adjoint(s, p, v_bar, self.C_bar[later, p])
+        ti.loop_config(serialize=serial)
+        for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
+            self.update_node_adjoint(ti.Vector([i, j, k]))
+        for p in range(self.n_particles[None]):  # no atomics, heavy (SVD adjoint): always worth threads
+            x_bar, v_bar, affine_bar, mass_bar = self.particle_to_grid_adjoint(s, p)
+            self.add_material_bar(p, ti.Vector([0.0, 0.0, mass_bar, 0.0, 0.0, 0.0]))
+            C_bar, F_bar = self.constitutive_adjoint(s, p, affine_bar)
+            self.x_bar[now, p] = self.x_bar[now, p] + x_bar
+            self.v_bar[now, p] = v_bar
+            self.C_bar[now, p] = C_bar
+            self.F_bar[now, p] = F_bar
 
     # ------------------------------------------------------------------ bookkeeping kernels
     @ti.kernel
@@ -415,7 +507,7 @@ class Simulator:
         is not finite, 2 if a particle left the box, else 0."""
         status = 0
         lower = 2.0
-        upper = ti.Vector(self.grid_shape).cast(ti.f64) - 2.0
+        upper = ti.Vector(self.grid_shape).cast(float) - 2.0
         for p in range(self.n_particles[None]):
             x, v, C, F = self.x[last, p], self.v[last, p], self.C[last, p], self.F[last, p]
             self.x[0, p], self.v[0, p], self.C[0, p], self.F[0, p] = x, v, C, F
@@ -466,49 +558,40 @@ class Simulator:
                 self.U[s, p][a, b], self.V[s, p][a, b] = states[s, p, 24 + i], states[s, p, 33 + i]
 
     @ti.kernel
-    def seed_gradient(self, grad_x: ti.types.ndarray()):
+    def seed_gradient(self, grad_x: ti.types.ndarray(), slot: ti.i32):
+        """Start a backward pass: the gradient of the final positions in state-gradient ``slot``, zero
+        for the rest of the final state and for the parameters' sums."""
         for p in range(self.n_particles[None]):
             for a in ti.static(range(3)):
-                self.x.grad[0, p][a] = grad_x[p, a]
-            self.v.grad[0, p] = ti.Vector.zero(ti.f64, 3)
-            self.C.grad[0, p] = ti.Matrix.zero(ti.f64, 3, 3)
-            self.F.grad[0, p] = ti.Matrix.zero(ti.f64, 3, 3)
+                self.x_bar[slot, p][a] = grad_x[p, a]
+            self.v_bar[slot, p] = ti.Vector.zero(float, 3)
+            self.C_bar[slot, p] = ti.Matrix.zero(float, 3, 3)
+            self.F_bar[slot, p] = ti.Matrix.zero(float, 3, 3)
+            self.material_bar[p] = ti.Vector.zero(float, ti.static(len(MATERIAL_GRADIENTS)))
+        for I in ti.grouped(self.friction_bar):
+            self.friction_bar[I] = ti.Vector.zero(float, 2)
 
     @ti.kernel
-    def carry_gradient(self, last: ti.i32):
-        """Move the gradient of the state at slot 0 (the start of the later step) to slot ``last``
-        (the end of this step) and clear the others."""
+    def carry_gradient(self):
+        """Move the state gradient from slot 0 (the start of the later step) to slot 1 (the end of this
+        step, when its substep count is odd)."""
         for p in range(self.n_particles[None]):
-            self.x.grad[last, p] = self.x.grad[0, p]
-            self.v.grad[last, p] = self.v.grad[0, p]
-            self.C.grad[last, p] = self.C.grad[0, p]
-            self.F.grad[last, p] = self.F.grad[0, p]
-            for s in range(last):
-                self.x.grad[s, p] = ti.Vector.zero(ti.f64, 3)
-                self.v.grad[s, p] = ti.Vector.zero(ti.f64, 3)
-                self.C.grad[s, p] = ti.Matrix.zero(ti.f64, 3, 3)
-                self.F.grad[s, p] = ti.Matrix.zero(ti.f64, 3, 3)
+            self.x_bar[1, p], self.v_bar[1, p] = self.x_bar[0, p], self.v_bar[0, p]
+            self.C_bar[1, p], self.F_bar[1, p] = self.C_bar[0, p], self.F_bar[0, p]
 
     @ti.kernel
-    def clear_substep_gradients(self, s: ti.i32):
-        ti.loop_config(serialize=self.serial)
+    def sum_parameter_gradients(self):
+        """Reduce the per-particle and per-node parameter gradients into ``gradient_total`` (once per
+        backward pass)."""
+        self.gradient_total[None] = ti.Vector.zero(float, ti.static(len(MATERIAL_GRADIENTS)))
         for p in range(self.n_particles[None]):
-            self.F_trial.grad[p] = ti.Matrix.zero(ti.f64, 3, 3)
-            self.U.grad[s, p] = ti.Matrix.zero(ti.f64, 3, 3)
-            self.V.grad[s, p] = ti.Matrix.zero(ti.f64, 3, 3)
-            self.sigma.grad[s, p] = ti.Vector.zero(ti.f64, 3)
-            self.affine.grad[p] = ti.Matrix.zero(ti.f64, 3, 3)
-            self.v_grid.grad[p] = ti.Vector.zero(ti.f64, 3)
-            self.sigma_elastic.grad[p] = ti.Vector.zero(ti.f64, 3)
-        ti.loop_config(serialize=self.serial)
-        for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
-            I = ti.Vector([i, j, k])
-            self.grid_m.grad[I] = 0.0
-            self.grid_p.grad[I] = ti.Vector.zero(ti.f64, 3)
-            self.grid_v.grad[I] = ti.Vector.zero(ti.f64, 3)
+            self.gradient_total[None] += self.material_bar[p]
+        for I in ti.grouped(self.friction_bar):
+            bar = self.friction_bar[I]
+            self.gradient_total[None] += ti.Vector([0.0, 0.0, 0.0, 0.0, bar[0], bar[1]])
 
     @ti.kernel
-    def grid_mass(self) -> ti.f64:
+    def grid_mass(self) -> float:
         """Total mass on the grid after the last substep (kg)."""
         total = 0.0
         for I in ti.grouped(self.grid_m):
@@ -561,62 +644,37 @@ class Simulator:
             raise SimulationError(f"the effector trajectory leaves the simulated box at step {k} "
                                   f"(tip at {tips[k].round(4)} m, box [{lower.round(4)}, {upper.round(4)}] m)")
         self.n_particles[None] = n
+        self.serial = self.config.serial_for(n)
         self.origin[None] = origin
         self.table_z[None] = scene.table_z
         self.particle_volume[None] = scene.particle_volume
         self._set_effector(scene.effector)
-        padded = np.zeros((c.max_steps + 1, 3))
+        padded = np.zeros((c.max_steps + 1, 3), dtype=self.float)
         padded[: steps + 1] = tips
         self.tip.from_numpy(padded)
-        padded_yaw = np.zeros(c.max_steps + 1)
+        padded_yaw = np.zeros(c.max_steps + 1, dtype=self.float)
         padded_yaw[: steps + 1] = yaws
         self.yaw.from_numpy(padded_yaw)
 
     def _set_params(self, params: Parameters) -> None:
         params.check_range()
-        for name, value in params.as_dict().items():
-            getattr(self, name)[None] = value
+        for name in ("yield_stress", "mu_table", "mu_effector"):
+            getattr(self, name)[None] = getattr(params, name)
+        self.shear[None], self.lam[None] = lame_parameters(params.E, params.nu)
+        self.particle_mass[None] = params.rho * self.particle_volume[None]
         self.substeps = self.config.substeps(params)
+        self.n_substeps[None] = self.substeps
         self.dt[None] = self.config.step_dt / self.substeps
-        self.material()
 
-    def _set_active_region(self, state: np.ndarray) -> None:
-        """Limit grid work during a step to the particles' bounding box plus REGION_MARGIN cells."""
+    def _begin_step(self, step: int, state: np.ndarray) -> None:
+        """Set the step whose substeps run next, and limit their grid work to the particles' bounding box
+        (``state``: the step's checkpoint) plus REGION_MARGIN cells."""
+        self.step[None] = step
         cells = (state[:, :3] - self.origin.to_numpy()) * self.inv_dx
         lo = np.floor(cells.min(axis=0)).astype(int) - REGION_MARGIN
         hi = np.ceil(cells.max(axis=0)).astype(int) + REGION_MARGIN
         self.region_lo[None] = np.maximum(lo, 0)
         self.region_hi[None] = np.minimum(hi, self.grid_shape)
-
-    def _substep(self, step: int, s: int) -> None:
-        self.contact_geometry(s, step, (s + 1) / self.substeps)
-        self.constitutive(s)
-        self.particle_to_grid(s)
-        self.grid_update()
-        self.grid_to_particle(s)
-        self.particle_contact_and_advect(s)
-
-    def _restore_substep_temporaries(self, step: int, s: int) -> None:
-        """Recompute what substep s keeps in single-copy fields (grid, contact, stress), reusing the
-        SVD stored for the substep."""
-        self.contact_geometry(s, step, (s + 1) / self.substeps)
-        self.return_mapping(s)
-        self.elastic_stress(s)
-        self.particle_to_grid(s)
-        self.grid_update()
-        self.grid_to_particle(s)
-
-    def _substep_backward(self, s: int) -> None:
-        self.clear_substep_gradients(s)
-        self.particle_contact_and_advect.grad(s)
-        self.grid_to_particle_adjoint(s)
-        self.grid_update.grad()
-        self.particle_to_grid_adjoint(s)
-        self.elastic_stress.grad(s)
-        self.elastic_deformation.grad(s)
-        self.return_mapping.grad(s)
-        self.decompose_backward(s)
-        self.trial_deformation.grad(s)
 
     def forward(self, scene: Scene, params: Parameters, keep_substeps: bool = True) -> np.ndarray:
         """Simulate the scene with parameters θ and return the final particle positions (n, 3) in m.
@@ -627,7 +685,7 @@ class Simulator:
         self._set_scene(scene)
         self._set_params(params)
         n, steps = len(scene.particles), scene.trajectory.n_steps
-        checkpoints = np.empty((steps + 1, n, STATE_WIDTH))
+        checkpoints = np.empty((steps + 1, n, STATE_WIDTH), dtype=self.float)
         checkpoints[0] = 0.0
         checkpoints[0, :, :3] = scene.particles
         checkpoints[0, :, 15:24] = np.eye(3).reshape(1, 9)
@@ -635,9 +693,10 @@ class Simulator:
         self.load_state(checkpoints[0])
         substates = self._substep_storage(n, steps) if keep_substeps else None
         for step in range(steps):
-            self._set_active_region(checkpoints[step])
+            self._begin_step(step, checkpoints[step])
             for s in range(self.substeps):
-                self._substep(step, s)
+                self.tabulate_contact(s, self.serial)
+                self.advance(s, self.serial)
             if substates is not None:
                 self.save_substeps(substates[step])
             status = self.store_state(self.substeps, checkpoints[step + 1])
@@ -653,18 +712,18 @@ class Simulator:
         The buffer is kept and reused by later calls (fresh memory costs a page fault per 4 KiB)."""
         shape = (steps, self.substeps + 1, n, SUBSTEP_WIDTH)
         size = int(np.prod(shape))
-        if size * 8 > self.config.substep_memory_mb * MIB:
+        if size * self._substep_buffer.itemsize > self.config.substep_memory_mb * MIB:
             return None
         if self._substep_buffer.size < size:
-            self._substep_buffer = np.empty(0)
-            self._substep_buffer = np.empty(size)
+            self._substep_buffer = np.empty(0, dtype=self.float)
+            self._substep_buffer = np.empty(size, dtype=self.float)
         return self._substep_buffer[:size].reshape(shape)
 
     def final_positions(self) -> np.ndarray:
         """Particle positions (n, 3) in m at the end of the last :meth:`forward`."""
         if self._checkpoints is None:
             raise SimulationError("no simulation has run yet")
-        return self._checkpoints[-1, :, :3].copy()
+        return self._checkpoints[-1, :, :3].astype(np.float64)
 
     def positions_at(self, steps) -> np.ndarray:
         """Particle positions (len(steps), n, 3) in m at the start of the given steps of the last
@@ -674,7 +733,7 @@ class Simulator:
         steps = np.asarray(steps, dtype=int)
         if steps.min() < 0 or steps.max() >= len(self._checkpoints):
             raise ValueError(f"steps must lie in 0..{len(self._checkpoints) - 1}, got {steps.tolist()}")
-        return self._checkpoints[steps, :, :3].copy()
+        return self._checkpoints[steps, :, :3].astype(np.float64)
 
     def backward(self, grad_positions: np.ndarray) -> dict[str, float]:
         """Gradient of a scalar loss L with respect to θ, given dL/d(final positions) (n, 3) in 1/m
@@ -682,30 +741,40 @@ class Simulator:
         if self._checkpoints is None:
             raise SimulationError("backward() needs a forward() first")
         checkpoints = self._checkpoints
-        grad_positions = np.ascontiguousarray(grad_positions, dtype=np.float64)
+        grad_positions = np.ascontiguousarray(grad_positions, dtype=self.float)
         if grad_positions.shape != checkpoints.shape[1:2] + (3,):
             raise ValueError(f"gradient has shape {grad_positions.shape}, expected {(checkpoints.shape[1], 3)}")
-        for name in (*NAMES, "shear", "lam", "particle_mass"):
-            getattr(self, name).grad[None] = 0.0
-        self.seed_gradient(grad_positions)
+        odd = self.substeps % 2
+        self.seed_gradient(grad_positions, odd)
         for step in reversed(range(len(checkpoints) - 1)):
-            self.carry_gradient(self.substeps)
-            self._set_active_region(checkpoints[step])
+            if odd and step < len(checkpoints) - 2:
+                self.carry_gradient()
+            self._begin_step(step, checkpoints[step])
             if self._substates is not None:
                 self.load_substeps(self._substates[step])
             else:
                 self.load_state(checkpoints[step])
                 for s in range(self.substeps):
-                    self._substep(step, s)
+                    self.tabulate_contact(s, self.serial)
+                    self.advance(s, self.serial)
             for s in reversed(range(self.substeps)):
-                self._restore_substep_temporaries(step, s)
-                self._substep_backward(s)
-        self.material.grad()
-        grads = {name: float(getattr(self, name).grad[None]) for name in NAMES}
+                self.tabulate_contact(s, self.serial)
+                self.restore(s, self.serial)
+                self.adjoint(s, self.serial)
+        grads = self._parameter_gradients()
         bad = [k for k, g in grads.items() if not np.isfinite(g)]
         if bad:
             raise SimulationError(f"gradient of {bad} is not finite (parameters {self._params.as_dict()})")
         return grads
+
+    def _parameter_gradients(self) -> dict[str, float]:
+        """dL/dθ from the per-particle and per-node sums of a finished backward pass."""
+        self.sum_parameter_gradients()
+        bar = dict(zip(MATERIAL_GRADIENTS, map(float, self.gradient_total[None].to_numpy())))
+        params = self._params
+        E_bar, nu_bar = lame_gradient(params.E, params.nu, bar["shear"], bar["lam"])
+        return {"E": E_bar, "nu": nu_bar, "rho": bar["particle_mass"] * float(self.particle_volume[None]),
+                "yield_stress": bar["yield_stress"], "mu_table": bar["mu_table"], "mu_effector": bar["mu_effector"]}
 
     def effector_signed_distance(self, scene: Scene, points: np.ndarray) -> np.ndarray:
         """Signed distance (m) of world points to the scene's effector at its start pose."""

@@ -5,31 +5,39 @@ from __future__ import annotations
 import os
 
 import taichi as ti
+from taichi.lang import impl
 
-_initialised_arch: str | None = None
+_initialised: tuple[str, str] | None = None
 
 
-def ensure_taichi(arch: str = "cpu", threads: int | None = None) -> None:
-    """Initialise Taichi for ``arch`` ("cpu" or "cuda") with float64 and the offline kernel cache.
+def ensure_taichi(arch: str = "cpu", precision: str = "f64", threads: int | None = None) -> None:
+    """Initialise Taichi for ``arch`` ("cpu" or "cuda") with floating-point ``precision`` ("f64" or
+    "f32") and the offline kernel cache.
 
-    Later calls with the same arch do nothing; asking for another arch in the same process is an
+    Later calls with the same arch and precision do nothing; asking for another in the same process is an
     error, because re-initialising Taichi would throw away every compiled kernel and field.
     """
-    global _initialised_arch
-    if _initialised_arch is not None:
-        if arch != _initialised_arch:
-            raise RuntimeError(f"Taichi already runs on {_initialised_arch!r} in this process; "
-                               f"cannot switch to {arch!r}")
+    global _initialised
+    if _initialised is not None:
+        if (arch, precision) != _initialised:
+            raise RuntimeError(f"Taichi already runs on {_initialised[0]!r} in {_initialised[1]} in this process; "
+                               f"cannot switch to {arch!r} in {precision} (start a new process for it)")
         return
     archs = {"cpu": ti.cpu, "cuda": ti.cuda}
     if arch not in archs:
         raise ValueError(f"unknown Taichi arch {arch!r}; use one of {sorted(archs)}")
-    options = dict(arch=archs[arch], default_fp=ti.f64, offline_cache=os.environ.get("DPSI_NO_CACHE") is None, log_level=ti.WARN,
-                   random_seed=0)
+    floats = {"f64": ti.f64, "f32": ti.f32}
+    if precision not in floats:
+        raise ValueError(f"unknown precision {precision!r}; use one of {sorted(floats)}")
+    options = dict(arch=archs[arch], default_fp=floats[precision], offline_cache=os.environ.get("DPSI_NO_CACHE") is None,
+                   log_level=ti.WARN, random_seed=0)
     if arch == "cpu":
         options["cpu_max_num_threads"] = threads or os.cpu_count() or 1
     cache = os.environ.get("DPSI_TAICHI_CACHE")
     if cache:
         options["offline_cache_file_path"] = cache
     ti.init(**options)
-    _initialised_arch = arch
+    if impl.current_cfg().arch != archs[arch]:
+        raise RuntimeError(f"Taichi found no usable {arch!r} device here and fell back to "
+                           f"{impl.current_cfg().arch.name}; run on a machine with one, or ask for 'cpu'")
+    _initialised = (arch, precision)

@@ -1,0 +1,72 @@
+"""Configuration and helpers of the identifiability ladder (identifiability.smk makes its rules): the ladder's
+folders, its runs with their labels, and the tables that `identifiability` and `tables` build.
+"""
+
+import itertools
+
+if "identifiability" in ANALYSES:
+    if "twin" not in config:
+        raise WorkflowError(
+            "analyses.identifiability needs a synthetic twin (the truth): add a `twin` section to the config"
+        )
+    LADDER = ANALYSES["identifiability"]
+    LADDER_ROOT = f"{RESULTS}/identifiability"
+    LADDER_RUN = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
+    LADDER_REFERENCE = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{dataset}}/reference.json"
+
+    def ladder_prepared(rung, ids):
+        """Prepared datapoints of a rung: R2 is the main pipeline's."""
+        if rung == "R2":
+            return prepared(ids)
+        return [f"{LADDER_ROOT}/{rung}/prepared/{i}.npz" for i in ids]
+
+    def ladder_runs(rungs, losses):
+        """Folder → labels of every ladder run on `rungs` with `losses`."""
+        runs = {}
+        for rung, level, loss, dataset, seed in itertools.product(
+            rungs,
+            LADDER["levels"],
+            losses,
+            LADDER["datasets"],
+            LADDER["seeds"],
+        ):
+            try:
+                training_ids(level, dataset), validation_ids(level)
+            except ValueError as err:
+                raise WorkflowError(f"analysis identifiability: {err}")
+            labels = dict(rung=rung, level=level, loss=loss, dataset=dataset, seed=seed)
+            runs[LADDER_RUN.format(**labels)] = labels
+        return runs
+
+    def ladder_references(runs):
+        return sorted({LADDER_REFERENCE.format(**labels) for labels in runs.values()})
+
+    LADDER_TABLES = {"identifiability": (LADDER["rungs"], LADDER["losses"])}
+    IN_TABLES = {
+        "rungs": LADDER["rungs"],
+        "losses": LADDER["losses"],
+        **LADDER.get("in_tables", {}),
+    }
+    if (IN_TABLES["rungs"], IN_TABLES["losses"]) != LADDER_TABLES["identifiability"]:
+        LADDER_TABLES["identifiability_" + "-".join(IN_TABLES["rungs"])] = (
+            IN_TABLES["rungs"],
+            IN_TABLES["losses"],
+        )
+
+    def ladder_outputs(name):
+        return table_files(name, "../report/identifiability.rst") + figure_files(
+            name, "../report/identifiability_figure.rst"
+        )
+
+    TABLES_LADDER = list(LADDER_TABLES)[-1]
+    ANALYSIS_TABLES += ladder_outputs(TABLES_LADDER)[:3]
+    ANALYSIS_FIGURES += ladder_outputs(TABLES_LADDER)[3:]
+
+    def bias_datapoints():
+        """The level-1 training datapoints of the ladder's datasets (the sources of bias are per datapoint)."""
+        ids = [
+            i
+            for d in LADDER["datasets"]
+            for i in training_ids(min(LADDER["levels"]), d)
+        ]
+        return list(dict.fromkeys(ids))
