@@ -22,8 +22,9 @@ from dpsi.simulation import Simulator, SimulatorConfig
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]) as log:
     if snakemake.input.summaries:
-        best = best_run([read_summary(f) for f in snakemake.input.summaries])
-        params, loss, dataset = Parameters.checked(**best["parameters"]), best["loss"], best["dataset"]
+        summaries = [read_summary(f) for f in snakemake.input.summaries]  # one (loss, dataset), its seeds
+        params = Parameters.checked(**best_run(summaries)["parameters"])
+        loss, dataset = summaries[0]["loss"], summaries[0]["dataset"]
     else:
         params, loss, dataset = HAND_PICKED, HAND_PICKED_LABEL, ""
     simulator = Simulator(SimulatorConfig(**snakemake.params.simulator))
