@@ -34,7 +34,7 @@ def block() -> np.ndarray:
 
 def datapoint(after: np.ndarray | None = None) -> Datapoint:
     """The block poked 6 mm down in 8 steps and lifted by 3 mm in 4, with targets taken from ``after``
-    (default: the block itself)."""
+    (default: the block itself; its height map drawn with particle cubes, as a simulated one is)."""
     particles = block()
     after = particles if after is None else after
     z = np.concatenate([np.linspace(0.0, -0.006, 9), np.linspace(-0.006, -0.003, 5)[1:]])
@@ -42,7 +42,7 @@ def datapoint(after: np.ndarray | None = None) -> Datapoint:
     return Datapoint("poke", "poke", ROUND, particles, SPACING**3,
                      Trajectory(np.column_stack([np.zeros((len(z), 2)), z]), np.zeros(len(z))),
                      np.array([*centre, particles[:, 2].max() + SPACING / 2]), 0.0,
-                     pcd_target(after), after, height_map(after, centre), centre)
+                     pcd_target(after), after, height_map(after, centre, particle_size=SPACING), centre)
 
 
 class FakeSimulator:
