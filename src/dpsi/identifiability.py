@@ -142,8 +142,8 @@ def ladder_table(summaries: Sequence[dict], logs: pd.DataFrame, references: Mapp
 
 
 def recovery_summary(table: pd.DataFrame) -> pd.DataFrame:
-    """Median relative error per (rung, level, loss) and parameter over datasets and seeds: the numbers the
-    README quotes and the figure draws."""
+    """Median relative error per (rung, level, loss) and parameter over datasets and seeds (the ladder at a
+    glance, for a notebook or the README)."""
     return table.groupby(["rung", "level", "loss", "parameter"])["rel_error"].median().unstack("parameter")
 
 
