@@ -27,15 +27,16 @@ def plastic_flow(sigma, yield_stress, shear):
 
 
 @ti.func
-def plastic_flow_adjoint(sigma, yield_stress, shear, out_bar):
-    """Gradients (σ̄, σ̄_y, μ̄) of :func:`plastic_flow` given the gradient of its output."""
+def plastic_flow_adjoint(sigma, elastic, yield_stress, shear, out_bar):
+    """Gradients (σ̄, σ̄_y, μ̄) of :func:`plastic_flow` given its output ``elastic`` (not recomputed: it
+    holds three of the function's six transcendentals) and the gradient of that output."""
     eps = ti.log(ti.max(sigma, MIN_STRETCH))
     eps_dev = eps - eps.sum() / 3.0
     dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + TINY)
     excess = dev_norm - yield_stress / (2.0 * shear)
     plastic = ti.max(excess, 0.0)
     ratio = plastic / dev_norm
-    z_bar = out_bar * ti.exp(eps - ratio * eps_dev)
+    z_bar = out_bar * elastic
     eps_bar = z_bar
     dev_bar = -ratio * z_bar
     ys_bar, shear_bar = 0.0, 0.0

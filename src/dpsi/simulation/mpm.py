@@ -116,6 +116,7 @@ class Simulator:
         self.V = ti.Matrix.field(3, 3, float, shape=slots)
         self.V_start = ti.Matrix.field(3, 3, float, shape=n)
         self.affine = ti.Matrix.field(3, 3, float, shape=n)
+        self.elastic = ti.Vector.field(3, float, shape=n)
         self.p_phi = ti.field(float, shape=n)
         self.p_normal = ti.Vector.field(3, float, shape=n)
         self.p_v_effector = ti.Vector.field(3, float, shape=n)
@@ -216,15 +217,14 @@ class Simulator:
         """Gradients of everything the constitutive update of substep s reads (C, F at slot s and the
         material parameters), given those of the affine momentum and of F at slot s + 1. Adds the
         parameter gradients to particle p's sums; returns (C̄, F̄) at slot s."""
-        u, sigma, v = self.U[s, p], self.sigma[s, p], self.V[s, p]
+        u, sigma, v, elastic = self.U[s, p], self.sigma[s, p], self.V[s, p], self.elastic[p]
         shear, lam, ys = self.shear[None], self.lam[None], self.yield_stress[None]
-        elastic = plastic_flow(sigma, ys, shear)
         principal = principal_stress(elastic, shear, lam)
         tau_bar = -self.stress_scale() * affine_bar
         u_bar, principal_bar, u_bar_transposed = compose_adjoint(u, principal, u, tau_bar)  # τ = U P Uᵀ
         elastic_bar, shear_bar, lam_bar = principal_stress_adjoint(elastic, shear, lam, principal_bar)
         next_u_bar, next_elastic_bar, v_bar = compose_adjoint(u, elastic, v, self.F_bar[(s + 1) % 2, p])
-        sigma_bar, ys_bar, flow_shear_bar = plastic_flow_adjoint(sigma, ys, shear, elastic_bar + next_elastic_bar)
+        sigma_bar, ys_bar, flow_shear_bar = plastic_flow_adjoint(sigma, elastic, ys, shear, elastic_bar + next_elastic_bar)
         trial_bar = svd_backward(u, sigma, v, u_bar + u_bar_transposed + next_u_bar, sigma_bar, v_bar)
         mass_bar = (self.C[s, p] * affine_bar).sum()
         self.add_material_bar(p, ti.Vector([shear_bar + flow_shear_bar, lam_bar, mass_bar, ys_bar, 0.0, 0.0]))
@@ -385,10 +385,19 @@ class Simulator:
         self.grid_v_bar[I] = ti.Vector.zero(float, 3)  # consumed: zero again for the next substep
 
     @ti.func
+    def on_table(self, s, p):
+        return self.x[s, p][2] <= self.table_z[None]
+
+    @ti.func
+    def in_contact(self, s, p):
+        """Whether particle p touches the table or the effector in substep s."""
+        return self.on_table(s, p) or self.p_phi[p] <= 0.0
+
+    @ti.func
     def particle_contact(self, s, p, v):
         """Particle velocity ``v`` after the table and after the effector."""
         after_table = v
-        if self.x[s, p][2] <= self.table_z[None]:
+        if self.on_table(s, p):
             after_table = frictional_contact(v, ti.Vector.zero(float, 3), ti.Vector([0.0, 0.0, 1.0]), self.mu_table[None])
         after_effector = after_table
         if self.p_phi[p] <= 0.0:
@@ -405,7 +414,7 @@ class Simulator:
         if self.p_phi[p] <= 0.0:
             v_bar, mu_effector_bar = frictional_contact_adjoint(after_table, self.p_v_effector[p], self.p_normal[p],
                                                                 self.mu_effector[None], v_bar)
-        if self.x[s, p][2] <= self.table_z[None]:
+        if self.on_table(s, p):
             v_bar, mu_table_bar = frictional_contact_adjoint(v, ti.Vector.zero(float, 3), ti.Vector([0.0, 0.0, 1.0]),
                                                              self.mu_table[None], v_bar)
         self.add_material_bar(p, ti.Vector([0.0, 0.0, 0.0, 0.0, mu_table_bar, mu_effector_bar]))
@@ -458,6 +467,7 @@ class Simulator:
         ti.loop_config(serialize=serial)
         for p in range(self.n_particles[None]):
             elastic = plastic_flow(self.sigma[s, p], self.yield_stress[None], self.shear[None])
+            self.elastic[p] = elastic
             self.affine[p] = self.affine_momentum(s, p, self.U[s, p], elastic)
             self.particle_to_grid(s, p)
         ti.loop_config(serialize=serial)
@@ -475,7 +485,9 @@ class Simulator:
         for p in range(self.n_particles[None]):
             x_later_bar = self.x_bar[later, p]
             velocity_bar = self.v_bar[later, p] + self.dt[None] * x_later_bar
-            v_bar = self.particle_contact_adjoint(s, p, self.grid_velocity(s, p), velocity_bar)
+            v_bar = velocity_bar
+            if self.in_contact(s, p):  # only then does the velocity before contact matter
+                v_bar = self.particle_contact_adjoint(s, p, self.grid_velocity(s, p), velocity_bar)
             self.x_bar[now, p] = x_later_bar + self.grid_to_particle_adjoint(s, p, v_bar, self.C_bar[later, p])
         ti.loop_config(serialize=serial)
         for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
