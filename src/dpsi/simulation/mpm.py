@@ -49,6 +49,10 @@ REGION_MARGIN = 5
 """Cells around the particles' bounding box that a step's grid work covers: the 3-node stencil reaches
 1.5 cells out, leaving 3.5 cells (≈ 2 cm) for motion within one 0.01 s step."""
 
+CONTACT_MARGIN_CELLS = 2
+"""Points this many cells outside the effector's bounding box are tested for contact (its signed distance
+evaluated); beyond, they are known to be clear of it."""
+
 STATE_WIDTH = 33
 """Floats per particle in a checkpoint: x (3), v (3), C (9), F (9), and the right singular vectors V (9)
 that warm-start the next step's first SVD."""
@@ -95,6 +99,10 @@ class Simulator:
         self.origin = ti.Vector.field(3, float, shape=())
         self.region_lo = ti.Vector.field(3, ti.i32, shape=())
         self.region_hi = ti.Vector.field(3, ti.i32, shape=())
+        self.reach_lo = ti.Vector.field(3, float, shape=())
+        self.reach_hi = ti.Vector.field(3, float, shape=())
+        self.reach_node_lo = ti.Vector.field(3, ti.i32, shape=())
+        self.reach_node_hi = ti.Vector.field(3, ti.i32, shape=())
 
         self.effector_kind = ti.field(ti.i32, shape=())
         self.effector_size = ti.Vector.field(3, float, shape=())
@@ -142,6 +150,7 @@ class Simulator:
         self.friction_bar = ti.Vector.field(2, float, shape=g)
 
         self._params = None
+        self._origin = self._tips = self._effector_bounds = None  # of the current scene, for _begin_step
         self._checkpoints = None
         self._substates = None
         self._substep_buffer = np.empty(0, dtype=self.float)
@@ -166,7 +175,7 @@ class Simulator:
         normal = ti.Vector([0.0, 0.0, 1.0])
         vel = ti.Vector.zero(float, 3)
         local = rotation_z(-yaw) @ rel
-        margin = 2.0 * self.dx
+        margin = ti.static(CONTACT_MARGIN_CELLS * self.dx)
         if (local > self.effector_lower[None] - margin).all() and (local < self.effector_upper[None] + margin).all():
             kind, size = self.effector_kind[None], self.effector_size[None]
             lower, spacing = self.sdf_lower[None], self.sdf_spacing[None]
@@ -183,17 +192,24 @@ class Simulator:
 
     @ti.func
     def tabulate_node_contact(self, I, s):
-        """Clear node I of the grid and store the effector's distance, normal and velocity there."""
-        self.grid_m[I] = 0.0
-        self.grid_p[I] = ti.Vector.zero(float, 3)
+        """Store the effector's distance, normal and velocity at node I (one within reach of it)."""
         node = self.origin[None] + I.cast(float) * self.dx
         self.g_phi[I], self.g_normal[I], self.g_v_effector[I] = self.effector_contact(
             node, self.step[None], self.substep_fraction(s))
 
     @ti.func
     def tabulate_particle_contact(self, s, p):
-        self.p_phi[p], self.p_normal[p], self.p_v_effector[p] = self.effector_contact(
-            self.x[s, p], self.step[None], self.substep_fraction(s))
+        """Store the effector's distance, normal and velocity at particle p (distance 1 m: out of reach)."""
+        x = self.x[s, p]
+        self.p_phi[p] = 1.0
+        if (x >= self.reach_lo[None]).all() and (x <= self.reach_hi[None]).all():
+            self.p_phi[p], self.p_normal[p], self.p_v_effector[p] = self.effector_contact(
+                x, self.step[None], self.substep_fraction(s))
+
+    @ti.func
+    def effector_touches(self, I):
+        """Whether grid node I lies on or inside the effector (tabulated by :meth:`tabulate_contact`)."""
+        return (I >= self.reach_node_lo[None]).all() and (I < self.reach_node_hi[None]).all() and self.g_phi[I] <= 0.0
 
     # ------------------------------------------------------------------ per-particle physics
     @ti.func
@@ -353,7 +369,7 @@ class Simulator:
         if on_table:
             after_table = frictional_contact(free, ti.Vector.zero(float, 3), ti.Vector([0.0, 0.0, 1.0]), self.mu_table[None])
         after_effector = after_table
-        if self.g_phi[I] <= 0.0:
+        if self.effector_touches(I):
             after_effector = frictional_contact(after_table, self.g_v_effector[I], self.g_normal[I], self.mu_effector[None])
         return free, on_table, after_table, after_effector
 
@@ -372,7 +388,7 @@ class Simulator:
             free, on_table, after_table, after_effector = self.node_contact(I)
             bar = self.walled(I, after_effector, self.grid_v_bar[I])
             mu_effector_bar, mu_table_bar = 0.0, 0.0
-            if self.g_phi[I] <= 0.0:
+            if self.effector_touches(I):
                 bar, mu_effector_bar = frictional_contact_adjoint(after_table, self.g_v_effector[I], self.g_normal[I],
                                                                   self.mu_effector[None], bar)
             if on_table:
@@ -427,7 +443,11 @@ class Simulator:
         particles (a kernel of its own, shared by :meth:`advance` and :meth:`restore`: the effector's
         shapes are most of the compile time)."""
         ti.loop_config(serialize=serial)
-        for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
+        for I in ti.grouped(ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)])):
+            self.grid_m[I] = 0.0
+            self.grid_p[I] = ti.Vector.zero(float, 3)
+        ti.loop_config(serialize=serial)
+        for i, j, k in ti.ndrange(*[(self.reach_node_lo[None][a], self.reach_node_hi[None][a]) for a in range(3)]):
             self.tabulate_node_contact(ti.Vector([i, j, k]), s)
         ti.loop_config(serialize=serial)
         for p in range(self.n_particles[None]):
@@ -625,6 +645,7 @@ class Simulator:
         self.effector_kind[None] = effector.kind
         self.effector_size[None] = effector.size
         self.effector_lower[None], self.effector_upper[None] = effector.bounds
+        self._effector_bounds = effector.bounds
         if effector.kind == GRID:
             self.sdf.from_numpy(effector.sdf)
             self.sdf_lower[None] = effector.sdf_lower
@@ -658,12 +679,14 @@ class Simulator:
         self.n_particles[None] = n
         self.serial = self.config.serial_for(n)
         self.origin[None] = origin
+        self._origin = origin
         self.table_z[None] = scene.table_z
         self.particle_volume[None] = scene.particle_volume
         self._set_effector(scene.effector)
         padded = np.zeros((c.max_steps + 1, 3), dtype=self.float)
         padded[: steps + 1] = tips
         self.tip.from_numpy(padded)
+        self._tips = tips
         padded_yaw = np.zeros(c.max_steps + 1, dtype=self.float)
         padded_yaw[: steps + 1] = yaws
         self.yaw.from_numpy(padded_yaw)
@@ -680,13 +703,31 @@ class Simulator:
 
     def _begin_step(self, step: int, state: np.ndarray) -> None:
         """Set the step whose substeps run next, and limit their grid work to the particles' bounding box
-        (``state``: the step's checkpoint) plus REGION_MARGIN cells."""
+        (``state``: the step's checkpoint) plus REGION_MARGIN cells, and their contact tests to the
+        effector's reach in this step."""
         self.step[None] = step
-        cells = (state[:, :3] - self.origin.to_numpy()) * self.inv_dx
-        lo = np.floor(cells.min(axis=0)).astype(int) - REGION_MARGIN
-        hi = np.ceil(cells.max(axis=0)).astype(int) + REGION_MARGIN
-        self.region_lo[None] = np.maximum(lo, 0)
-        self.region_hi[None] = np.minimum(hi, self.grid_shape)
+        origin = self._origin
+        cells = (state[:, :3] - origin) * self.inv_dx
+        region_lo = np.maximum(np.floor(cells.min(axis=0)).astype(int) - REGION_MARGIN, 0)
+        region_hi = np.minimum(np.ceil(cells.max(axis=0)).astype(int) + REGION_MARGIN, self.grid_shape)
+        self.region_lo[None], self.region_hi[None] = region_lo, region_hi
+        reach_lo, reach_hi = self._effector_reach(step)
+        node_lo = np.clip(np.floor((reach_lo - origin) * self.inv_dx).astype(int), region_lo, region_hi)
+        node_hi = np.clip(np.ceil((reach_hi - origin) * self.inv_dx).astype(int) + 1, node_lo, region_hi)
+        self.reach_lo[None], self.reach_hi[None] = reach_lo, reach_hi
+        self.reach_node_lo[None], self.reach_node_hi[None] = node_lo, node_hi
+
+    def _effector_reach(self, step: int) -> tuple[np.ndarray, np.ndarray]:
+        """World box (m) holding every point that :meth:`effector_contact` tests during ``step``: the
+        effector's bounds plus CONTACT_MARGIN_CELLS, turned by any yaw (a circle in x, y), swept from the
+        step's first tip position to its last, plus one cell for round-off."""
+        margin = CONTACT_MARGIN_CELLS * self.dx
+        lower, upper = np.asarray(self._effector_bounds[0]) - margin, np.asarray(self._effector_bounds[1]) + margin
+        radius = np.hypot(max(abs(lower[0]), abs(upper[0])), max(abs(lower[1]), abs(upper[1])))
+        tips = self._tips[step:step + 2]
+        low = tips.min(axis=0) + np.array([-radius, -radius, lower[2]]) - self.dx
+        high = tips.max(axis=0) + np.array([radius, radius, upper[2]]) + self.dx
+        return low, high
 
     def forward(self, scene: Scene, params: Parameters, keep_substeps: bool = True) -> np.ndarray:
         """Simulate the scene with parameters θ and return the final particle positions (n, 3) in m.
