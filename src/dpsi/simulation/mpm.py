@@ -134,6 +134,7 @@ class Simulator:
         self.v_bar = ti.Vector.field(3, float, shape=(2, n))
         self.C_bar = ti.Matrix.field(3, 3, float, shape=(2, n))
         self.F_bar = ti.Matrix.field(3, 3, float, shape=(2, n))
+        self.velocity_bar = ti.Vector.field(3, float, shape=n)  # of the velocity before particle contact
         self.material_bar = ti.Vector.field(len(MATERIAL_GRADIENTS), float, shape=n)
         self.gradient_total = ti.Vector.field(len(MATERIAL_GRADIENTS), float, shape=())
 
@@ -298,22 +299,6 @@ class Simulator:
                 self.grid_m[node] += w * mass
 
     @ti.func
-    def particle_to_grid_adjoint(self, s, p):
-        """Gradients (x̄, v̄, Ā, m̄) of :meth:`particle_to_grid` from those of grid momentum and mass."""
-        mass, v, A = self.particle_mass[None], self.v[s, p], self.affine[p]
-        x_bar, v_bar, m_bar = ti.Vector.zero(float, 3), ti.Vector.zero(float, 3), 0.0
-        A_bar = ti.Matrix.zero(float, 3, 3)
-        base, fx, W, D = self.stencil(self.x[s, p])
-        for i, j, k in ti.ndrange(3, 3, 3):
-            node, w, dpos, grad_w = self.stencil_node(base, fx, W, D, i, j, k)
-            p_bar, m_node_bar = self.grid_p_bar[node], self.grid_m_bar[node]
-            v_bar += w * mass * p_bar
-            A_bar += w * p_bar.outer_product(dpos)
-            m_bar += w * (v.dot(p_bar) + m_node_bar)
-            x_bar += (p_bar.dot(mass * v + A @ dpos) + m_node_bar * mass) * grad_w - w * (A.transpose() @ p_bar)
-        return x_bar, v_bar, A_bar, m_bar
-
-    @ti.func
     def grid_to_particle(self, s, p):
         """v = Σ w v_i and C = (4/Δx²) Σ w v_i (x_i − x_p)ᵀ."""
         v = ti.Vector.zero(float, 3)
@@ -327,17 +312,38 @@ class Simulator:
         return v, C
 
     @ti.func
-    def grid_to_particle_adjoint(self, s, p, v_bar, C_bar):
-        """Adds the gradients of :meth:`grid_to_particle` to the grid velocities' and returns x̄."""
-        x_bar = ti.Vector.zero(float, 3)
-        scale = 4.0 * self.inv_dx * self.inv_dx
+    def grid_to_particle_scatter_adjoint(self, s, p, v_bar, C_bar):
+        """Adds the gradients of :meth:`grid_to_particle` with respect to the grid velocities, given those
+        of v and C, to the nodes' (the position's gradient is gathered by :meth:`transfers_adjoint`)."""
+        C_bar_scaled = 4.0 * self.inv_dx * self.inv_dx * C_bar
+        base, fx, W, D = self.stencil(self.x[s, p])
+        for i in range(3):
+            for j, k in ti.static(ti.ndrange(3, 3)):
+                node, w, dpos, _ = self.stencil_node(base, fx, W, D, i, j, k)
+                self.grid_v_bar[node] += w * (v_bar + C_bar_scaled @ dpos)
+
+    @ti.func
+    def transfers_adjoint(self, s, p, velocity_bar, C_bar):
+        """What particle p gathers from the grid in the reverse of substep s's two transfers: the gradient
+        of its position through :meth:`grid_to_particle` (given those of its v and C, ``velocity_bar`` and
+        ``C_bar``) and through :meth:`particle_to_grid` (given those of grid momentum and mass), and the
+        gradients of its velocity, affine momentum and mass through the latter. Returns (x̄, v̄, Ā, m̄)."""
+        mass, v, A = self.particle_mass[None], self.v[s, p], self.affine[p]
+        C_bar_scaled = 4.0 * self.inv_dx * self.inv_dx * C_bar
+        x_bar, weighted_v, weighted_p_bar = ti.Vector.zero(float, 3), ti.Vector.zero(float, 3), ti.Vector.zero(float, 3)
+        A_bar = ti.Matrix.zero(float, 3, 3)
+        weighted_m_bar = 0.0
         base, fx, W, D = self.stencil(self.x[s, p])
         for i, j, k in ti.ndrange(3, 3, 3):
             node, w, dpos, grad_w = self.stencil_node(base, fx, W, D, i, j, k)
-            g_v = self.grid_v[node]
-            self.grid_v_bar[node] += w * v_bar + scale * w * (C_bar @ dpos)
-            x_bar += (g_v.dot(v_bar) + scale * g_v.dot(C_bar @ dpos)) * grad_w - scale * w * (C_bar.transpose() @ g_v)
-        return x_bar
+            g_v, p_bar, m_bar = self.grid_v[node], self.grid_p_bar[node], self.grid_m_bar[node]
+            weighted_v += w * g_v
+            weighted_p_bar += w * p_bar
+            weighted_m_bar += w * m_bar
+            A_bar += w * p_bar.outer_product(dpos)
+            x_bar += (g_v.dot(velocity_bar + C_bar_scaled @ dpos) + p_bar.dot(mass * v + A @ dpos) + m_bar * mass) * grad_w
+        x_bar -= C_bar_scaled.transpose() @ weighted_v + A.transpose() @ weighted_p_bar
+        return x_bar, mass * weighted_p_bar, A_bar, v.dot(weighted_p_bar) + weighted_m_bar
 
     @ti.func
     def grid_velocity(self, s, p):
@@ -497,26 +503,26 @@ class Simulator:
     @ti.kernel
     def adjoint(self, s: ti.i32, serial: ti.template()):
         """Gradients of the state at slot s from those at slot s + 1, through substep s (after
-        :meth:`restore`): advection, particle contact and grid-to-particle; the grid update; the
-        particle-to-grid transfer and the constitutive update. Like the SVD of :meth:`advance`, the last
-        loop is heavy enough to be worth starting threads for, whatever ``serial`` says."""
+        :meth:`restore`): advection and particle contact, scattering the grid velocities' gradients; the
+        grid update; then each particle gathers from the grid its gradients through both transfers and
+        goes back through the constitutive update. Like the SVD of :meth:`advance`, that last loop has no
+        atomics and is heavy enough to be worth starting threads for, whatever ``serial`` says."""
         now, later = s % 2, (s + 1) % 2
         ti.loop_config(serialize=serial)
         for p in range(self.n_particles[None]):
-            x_later_bar = self.x_bar[later, p]
-            velocity_bar = self.v_bar[later, p] + self.dt[None] * x_later_bar
-            v_bar = velocity_bar
+            velocity_bar = self.v_bar[later, p] + self.dt[None] * self.x_bar[later, p]
             if self.in_contact(s, p):  # only then does the velocity before contact matter
-                v_bar = self.particle_contact_adjoint(s, p, self.grid_velocity(s, p), velocity_bar)
-            self.x_bar[now, p] = x_later_bar + self.grid_to_particle_adjoint(s, p, v_bar, self.C_bar[later, p])
+                velocity_bar = self.particle_contact_adjoint(s, p, self.grid_velocity(s, p), velocity_bar)
+            self.velocity_bar[p] = velocity_bar
+            self.grid_to_particle_scatter_adjoint(s, p, velocity_bar, self.C_bar[later, p])
         ti.loop_config(serialize=serial)
         for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
             self.update_node_adjoint(ti.Vector([i, j, k]))
         for p in range(self.n_particles[None]):  # no atomics, heavy (SVD adjoint): always worth threads
-            x_bar, v_bar, affine_bar, mass_bar = self.particle_to_grid_adjoint(s, p)
+            x_bar, v_bar, affine_bar, mass_bar = self.transfers_adjoint(s, p, self.velocity_bar[p], self.C_bar[later, p])
             self.add_material_bar(p, ti.Vector([0.0, 0.0, mass_bar, 0.0, 0.0, 0.0]))
             C_bar, F_bar = self.constitutive_adjoint(s, p, affine_bar)
-            self.x_bar[now, p] = self.x_bar[now, p] + x_bar
+            self.x_bar[now, p] = self.x_bar[later, p] + x_bar
             self.v_bar[now, p] = v_bar
             self.C_bar[now, p] = C_bar
             self.F_bar[now, p] = F_bar
