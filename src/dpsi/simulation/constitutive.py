@@ -18,12 +18,15 @@ TINY = 1e-30
 @ti.func
 def plastic_flow(sigma, yield_stress, shear):
     """Singular values after projecting the trial Hencky strain log σ onto the von Mises surface
-    ‖dev ε‖ ≤ σ_y / (2μ)."""
-    eps = ti.log(ti.max(sigma, MIN_STRETCH))
+    ‖dev ε‖ ≤ σ_y / (2μ) (inside it, σ itself: no exponential taken)."""
+    stretch = ti.max(sigma, MIN_STRETCH)
+    eps = ti.log(stretch)
     eps_dev = eps - eps.sum() / 3.0
     dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + TINY)
-    plastic = ti.max(dev_norm - yield_stress / (2.0 * shear), 0.0)
-    return ti.exp(eps - plastic / dev_norm * eps_dev)
+    plastic = dev_norm - yield_stress / (2.0 * shear)
+    if plastic > 0.0:
+        stretch = ti.exp(eps - plastic / dev_norm * eps_dev)
+    return stretch
 
 
 @ti.func
