@@ -14,43 +14,62 @@ MIN_STRETCH = 1e-8
 TINY = 1e-30
 """Added under square roots so that they and their derivatives stay finite at zero."""
 
+ELASTIC_MARGIN = 0.9
+""":func:`surely_elastic` answers yes only below this fraction of the yield strain, leaving room for
+round-off (of float32 too) between its bound and the exact test."""
+
+
+@ti.func
+def surely_elastic(stretch, yield_stress, shear):
+    """Whether stretches (each ≥ MIN_STRETCH) lie inside the von Mises surface, decided by a bound that
+    takes no logarithm: |log σ_i − log σ_j| ≤ |σ_i − σ_j| / min σ, and ‖dev ε‖² = Σ_{i<j} (ε_i − ε_j)² / 3.
+    False means "maybe not": the exact test must decide."""
+    low = stretch.min()
+    spread = 0.0
+    for i, j in ti.static(((0, 1), (0, 2), (1, 2))):
+        spread += (stretch[i] - stretch[j]) ** 2
+    limit = ELASTIC_MARGIN * yield_stress / (2.0 * shear) * low
+    return spread / 3.0 + TINY * low * low < limit * limit
+
 
 @ti.func
 def plastic_flow(sigma, yield_stress, shear):
     """Singular values after projecting the trial Hencky strain log σ onto the von Mises surface
-    ‖dev ε‖ ≤ σ_y / (2μ) (inside it, σ itself: no exponential taken)."""
+    ‖dev ε‖ ≤ σ_y / (2μ) (inside it, σ itself)."""
     stretch = ti.max(sigma, MIN_STRETCH)
-    eps = ti.log(stretch)
-    eps_dev = eps - eps.sum() / 3.0
-    dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + TINY)
-    plastic = dev_norm - yield_stress / (2.0 * shear)
-    if plastic > 0.0:
-        stretch = ti.exp(eps - plastic / dev_norm * eps_dev)
+    if not surely_elastic(stretch, yield_stress, shear):
+        eps = ti.log(stretch)
+        eps_dev = eps - eps.sum() / 3.0
+        dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + TINY)
+        plastic = dev_norm - yield_stress / (2.0 * shear)
+        if plastic > 0.0:
+            stretch = ti.exp(eps - plastic / dev_norm * eps_dev)
     return stretch
 
 
 @ti.func
 def plastic_flow_adjoint(sigma, elastic, yield_stress, shear, out_bar):
     """Gradients (σ̄, σ̄_y, μ̄) of :func:`plastic_flow` given its output ``elastic`` (not recomputed: it
-    holds three of the function's six transcendentals) and the gradient of that output."""
-    eps = ti.log(ti.max(sigma, MIN_STRETCH))
-    eps_dev = eps - eps.sum() / 3.0
-    dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + TINY)
-    excess = dev_norm - yield_stress / (2.0 * shear)
-    plastic = ti.max(excess, 0.0)
-    ratio = plastic / dev_norm
-    z_bar = out_bar * elastic
-    eps_bar = z_bar
-    dev_bar = -ratio * z_bar
+    holds the function's exponentials) and the gradient of that output."""
+    eps_bar = out_bar * elastic  # of ε = log σ, through exp
     ys_bar, shear_bar = 0.0, 0.0
-    if excess > 0.0:
-        ratio_bar = -z_bar.dot(eps_dev)
-        plastic_bar = ratio_bar / dev_norm
-        norm_bar = plastic_bar - ratio_bar * plastic / (dev_norm * dev_norm)
-        ys_bar = -plastic_bar / (2.0 * shear)
-        shear_bar = plastic_bar * yield_stress / (2.0 * shear * shear)
-        dev_bar += norm_bar * eps_dev / dev_norm
-    eps_bar += dev_bar - dev_bar.sum() / 3.0
+    if not surely_elastic(ti.max(sigma, MIN_STRETCH), yield_stress, shear):
+        eps = ti.log(ti.max(sigma, MIN_STRETCH))
+        eps_dev = eps - eps.sum() / 3.0
+        dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + TINY)
+        excess = dev_norm - yield_stress / (2.0 * shear)
+        plastic = ti.max(excess, 0.0)
+        ratio = plastic / dev_norm
+        z_bar = eps_bar
+        dev_bar = -ratio * z_bar
+        if excess > 0.0:
+            ratio_bar = -z_bar.dot(eps_dev)
+            plastic_bar = ratio_bar / dev_norm
+            norm_bar = plastic_bar - ratio_bar * plastic / (dev_norm * dev_norm)
+            ys_bar = -plastic_bar / (2.0 * shear)
+            shear_bar = plastic_bar * yield_stress / (2.0 * shear * shear)
+            dev_bar += norm_bar * eps_dev / dev_norm
+        eps_bar += dev_bar - dev_bar.sum() / 3.0
     sigma_bar = ti.select(sigma > MIN_STRETCH, eps_bar / sigma, 0.0)
     return sigma_bar, ys_bar, shear_bar
 
