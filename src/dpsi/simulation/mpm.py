@@ -45,9 +45,6 @@ GRAVITY = -9.81
 WALL_CELLS = 3
 """Nodes this close to the box's faces stop outward motion (the box walls)."""
 
-REGION_MARGIN = 5
-"""Cells around the particles' bounding box that a step's grid work covers: the 3-node stencil reaches
-1.5 cells out, leaving 3.5 cells (≈ 2 cm) for motion within one 0.01 s step."""
 
 CONTACT_MARGIN_CELLS = 2
 """Points this many cells outside the effector's bounding box are tested for contact (its signed distance
@@ -97,7 +94,7 @@ class Simulator:
         self.n_substeps = ti.field(ti.i32, shape=())
         self.step = ti.field(ti.i32, shape=())
         self.origin = ti.Vector.field(3, float, shape=())
-        self.region_lo = ti.Vector.field(3, ti.i32, shape=())
+        self.region_lo = ti.Vector.field(3, ti.i32, shape=())  # nodes the particles' stencils reach in a substep
         self.region_hi = ti.Vector.field(3, ti.i32, shape=())
         self.reach_lo = ti.Vector.field(3, float, shape=())
         self.reach_hi = ti.Vector.field(3, float, shape=())
@@ -264,9 +261,8 @@ class Simulator:
         """The 3×3×3 stencil of position ``x``: its base node, the particle's offset fx from it (cells),
         and per node offset o (rows) and axis (columns) the quadratic B-spline weight of d = o − fx and
         its derivative with respect to d. Computed once per particle, used for all 27 nodes."""
-        X = (x - self.origin[None]) * self.inv_dx
-        base = ti.min(ti.max(ti.cast(X - 0.5, ti.i32), 0), ti.Vector(self.grid_shape) - 3)
-        fx = X - base.cast(float)
+        base = self.stencil_base(x)
+        fx = (x - self.origin[None]) * self.inv_dx - base.cast(float)
         W = ti.Matrix.zero(float, 3, 3)
         D = ti.Matrix.zero(float, 3, 3)
         for o, a in ti.static(ti.ndrange(3, 3)):
@@ -276,6 +272,12 @@ class Simulator:
             else:
                 W[o, a], D[o, a] = 0.5 * (1.5 - ti.abs(d)) ** 2, -(1.5 - ti.abs(d)) * ti.math.sign(d)
         return base, fx, W, D
+
+    @ti.func
+    def stencil_base(self, x):
+        """The lowest node of the 3×3×3 stencil of position ``x``."""
+        X = (x - self.origin[None]) * self.inv_dx
+        return ti.min(ti.max(ti.cast(X - 0.5, ti.i32), 0), ti.Vector(self.grid_shape) - 3)
 
     @ti.func
     def stencil_node(self, base, fx, W, D, i, j, k):
@@ -445,19 +447,28 @@ class Simulator:
     # ------------------------------------------------------------------ substep kernels
     @ti.kernel
     def tabulate_contact(self, s: ti.i32, serial: ti.template()):
-        """Start substep s: clear the grid, tabulate the effector's contact geometry at the nodes and the
-        particles (a kernel of its own, shared by :meth:`advance` and :meth:`restore`: the effector's
-        shapes are most of the compile time)."""
+        """Start substep s: tabulate the effector's contact geometry at the particles, find the region of
+        grid nodes their stencils reach (where the substep's grid work happens), clear it and tabulate the
+        contact geometry at its nodes within the effector's reach (a kernel of its own, shared by
+        :meth:`advance` and :meth:`restore`: the effector's shapes are most of the compile time)."""
+        self.region_lo[None] = ti.Vector(self.grid_shape)
+        self.region_hi[None] = ti.Vector.zero(ti.i32, 3)
+        ti.loop_config(serialize=serial)
+        for p in range(self.n_particles[None]):
+            self.tabulate_particle_contact(s, p)
+            base = self.stencil_base(self.x[s, p])
+            for a in ti.static(range(3)):
+                ti.atomic_min(self.region_lo[None][a], base[a])
+                ti.atomic_max(self.region_hi[None][a], base[a] + 3)
         ti.loop_config(serialize=serial)
         for I in ti.grouped(ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)])):
             self.grid_m[I] = 0.0
             self.grid_p[I] = ti.Vector.zero(float, 3)
+        lo = ti.max(self.reach_node_lo[None], self.region_lo[None])
+        hi = ti.max(ti.min(self.reach_node_hi[None], self.region_hi[None]), lo)
         ti.loop_config(serialize=serial)
-        for i, j, k in ti.ndrange(*[(self.reach_node_lo[None][a], self.reach_node_hi[None][a]) for a in range(3)]):
+        for i, j, k in ti.ndrange(*[(lo[a], hi[a]) for a in range(3)]):
             self.tabulate_node_contact(ti.Vector([i, j, k]), s)
-        ti.loop_config(serialize=serial)
-        for p in range(self.n_particles[None]):
-            self.tabulate_particle_contact(s, p)
 
     @ti.kernel
     def advance(self, s: ti.i32, serial: ti.template()):
@@ -630,9 +641,9 @@ class Simulator:
 
     @ti.kernel
     def grid_mass(self) -> float:
-        """Total mass on the grid after the last substep (kg)."""
+        """Total mass on the grid after the last substep (kg): in its region (the rest is stale)."""
         total = 0.0
-        for I in ti.grouped(self.grid_m):
+        for I in ti.grouped(ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)])):
             total += self.grid_m[I]
         return total
 
@@ -707,19 +718,13 @@ class Simulator:
         self.n_substeps[None] = self.substeps
         self.dt[None] = self.config.step_dt / self.substeps
 
-    def _begin_step(self, step: int, state: np.ndarray) -> None:
-        """Set the step whose substeps run next, and limit their grid work to the particles' bounding box
-        (``state``: the step's checkpoint) plus REGION_MARGIN cells, and their contact tests to the
-        effector's reach in this step."""
+    def _begin_step(self, step: int) -> None:
+        """Set the step whose substeps run next, and limit their contact tests to the effector's reach in
+        this step."""
         self.step[None] = step
-        origin = self._origin
-        cells = (state[:, :3] - origin) * self.inv_dx
-        region_lo = np.maximum(np.floor(cells.min(axis=0)).astype(int) - REGION_MARGIN, 0)
-        region_hi = np.minimum(np.ceil(cells.max(axis=0)).astype(int) + REGION_MARGIN, self.grid_shape)
-        self.region_lo[None], self.region_hi[None] = region_lo, region_hi
         reach_lo, reach_hi = self._effector_reach(step)
-        node_lo = np.clip(np.floor((reach_lo - origin) * self.inv_dx).astype(int), region_lo, region_hi)
-        node_hi = np.clip(np.ceil((reach_hi - origin) * self.inv_dx).astype(int) + 1, node_lo, region_hi)
+        node_lo = np.clip(np.floor((reach_lo - self._origin) * self.inv_dx).astype(int), 0, self.grid_shape)
+        node_hi = np.clip(np.ceil((reach_hi - self._origin) * self.inv_dx).astype(int) + 1, node_lo, self.grid_shape)
         self.reach_lo[None], self.reach_hi[None] = reach_lo, reach_hi
         self.reach_node_lo[None], self.reach_node_hi[None] = node_lo, node_hi
 
@@ -752,7 +757,7 @@ class Simulator:
         self.load_state(checkpoints[0])
         substates = self._substep_storage(n, steps) if keep_substeps else None
         for step in range(steps):
-            self._begin_step(step, checkpoints[step])
+            self._begin_step(step)
             for s in range(self.substeps):
                 self.tabulate_contact(s, self.serial)
                 self.advance(s, self.serial)
@@ -808,7 +813,7 @@ class Simulator:
         for step in reversed(range(len(checkpoints) - 1)):
             if odd and step < len(checkpoints) - 2:
                 self.carry_gradient()
-            self._begin_step(step, checkpoints[step])
+            self._begin_step(step)
             if self._substates is not None:
                 self.load_substeps(self._substates[step])
             else:
