@@ -579,7 +579,8 @@ class Simulator:
 
     @ti.kernel
     def save_substeps(self, states: ti.types.ndarray()):
-        """Copy every substep slot of the step just simulated into ``states`` (substeps + 1, n, 45)."""
+        """Copy the slots that the substeps of the step just simulated start from into ``states``
+        (substeps, n, 45): what the backward pass reads (the last slot, the step's end, is not)."""
         for s, p in ti.ndrange(states.shape[0], self.n_particles[None]):
             self.substep_state(s, p, states, True)
 
@@ -774,7 +775,7 @@ class Simulator:
     def _substep_storage(self, n: int, steps: int) -> "np.ndarray | None":
         """Room for every substep state of the trajectory, or None if it exceeds the memory budget.
         The buffer is kept and reused by later calls (fresh memory costs a page fault per 4 KiB)."""
-        shape = (steps, self.substeps + 1, n, SUBSTEP_WIDTH)
+        shape = (steps, self.substeps, n, SUBSTEP_WIDTH)
         size = int(np.prod(shape))
         if size * self._substep_buffer.itemsize > self.config.substep_memory_mb * MIB:
             return None
