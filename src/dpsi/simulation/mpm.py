@@ -189,20 +189,27 @@ class Simulator:
         return (s + 1) / self.n_substeps[None]
 
     @ti.func
-    def tabulate_node_contact(self, I, s):
-        """Store the effector's distance, normal and velocity at node I (one within reach of it)."""
-        node = self.origin[None] + I.cast(float) * self.dx
-        self.g_phi[I], self.g_normal[I], self.g_v_effector[I] = self.effector_contact(
-            node, self.step[None], self.substep_fraction(s))
-
-    @ti.func
-    def tabulate_particle_contact(self, s, p):
-        """Store the effector's distance, normal and velocity at particle p (distance 1 m: out of reach)."""
-        x = self.x[s, p]
-        self.p_phi[p] = 1.0
-        if (x >= self.reach_lo[None]).all() and (x <= self.reach_hi[None]).all():
-            self.p_phi[p], self.p_normal[p], self.p_v_effector[p] = self.effector_contact(
-                x, self.step[None], self.substep_fraction(s))
+    def tabulate_point_contact(self, q, s, lo, extent):
+        """Store the effector's distance, normal and velocity at point q of substep s: particle q, or for
+        q ≥ n_particles a node of the box ``lo`` + [0, ``extent``) of nodes within the effector's reach.
+        Particles out of its reach get distance 1 m. One call site of :meth:`effector_contact` for
+        both, which halves the kernel's compile time."""
+        n = self.n_particles[None]
+        point = ti.Vector.zero(float, 3)
+        I = ti.Vector.zero(ti.i32, 3)
+        if q < n:
+            point = self.x[s, q]
+        else:
+            flat = q - n
+            I = lo + ti.Vector([flat // (extent[1] * extent[2]), (flat // extent[2]) % extent[1], flat % extent[2]])
+            point = self.origin[None] + I.cast(float) * self.dx
+        phi, normal, velocity = 1.0, ti.Vector([0.0, 0.0, 1.0]), ti.Vector.zero(float, 3)
+        if (point >= self.reach_lo[None]).all() and (point <= self.reach_hi[None]).all():
+            phi, normal, velocity = self.effector_contact(point, self.step[None], self.substep_fraction(s))
+        if q < n:
+            self.p_phi[q], self.p_normal[q], self.p_v_effector[q] = phi, normal, velocity
+        else:
+            self.g_phi[I], self.g_normal[I], self.g_v_effector[I] = phi, normal, velocity
 
     @ti.func
     def effector_touches(self, I):
@@ -455,7 +462,6 @@ class Simulator:
         self.region_hi[None] = ti.Vector.zero(ti.i32, 3)
         ti.loop_config(serialize=serial)
         for p in range(self.n_particles[None]):
-            self.tabulate_particle_contact(s, p)
             base = self.stencil_base(self.x[s, p])
             for a in ti.static(range(3)):
                 ti.atomic_min(self.region_lo[None][a], base[a])
@@ -465,10 +471,10 @@ class Simulator:
             self.grid_m[I] = 0.0
             self.grid_p[I] = ti.Vector.zero(float, 3)
         lo = ti.max(self.reach_node_lo[None], self.region_lo[None])
-        hi = ti.max(ti.min(self.reach_node_hi[None], self.region_hi[None]), lo)
+        extent = ti.max(ti.min(self.reach_node_hi[None], self.region_hi[None]) - lo, 0)
         ti.loop_config(serialize=serial)
-        for i, j, k in ti.ndrange(*[(lo[a], hi[a]) for a in range(3)]):
-            self.tabulate_node_contact(ti.Vector([i, j, k]), s)
+        for q in range(self.n_particles[None] + extent[0] * extent[1] * extent[2]):
+            self.tabulate_point_contact(q, s, lo, extent)
 
     @ti.kernel
     def advance(self, s: ti.i32, serial: ti.template()):
