@@ -4,6 +4,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import taichi as ti
 import taichi.lang.kernel_impl as kernel_impl
 
 from conftest import shared
@@ -11,6 +12,7 @@ from dpsi import effectors
 from dpsi.motions import Trajectory, trajectory
 from dpsi.parameters import HAND_PICKED, NAMES, STIFFEST, Parameters
 from dpsi.simulation import Scene, SimulationError, Simulator, SimulatorConfig
+from dpsi.simulation.constitutive import surely_elastic
 
 SPACING = 0.004  # m between particles: a coarse object keeps these tests fast
 CONFIG = SimulatorConfig(width=0.12, height=0.08, max_particles=1500, max_steps=120)
@@ -233,6 +235,45 @@ def test_stiffest_corner_of_the_range_is_stable(sim):
     final = sim.forward(scene(particles, path(10, dz=-0.0003), effectors.ROUND), STIFFEST)
     assert sim.substeps == CONFIG.max_substeps
     assert np.isfinite(final).all() and np.abs(final - particles).max() < 0.01
+
+
+# ---------------------------------------------------------------- shortcuts that must not change results
+def test_contact_tested_only_within_the_effector_reach_changes_nothing(sim, monkeypatch):
+    """The rectangle pressed into a long block, then moved 30 mm along it while turning by 90°: testing
+    contact only within each step's reach box gives the same trajectory, to the bit, as testing it at
+    every particle and node."""
+    particles = block(size=(0.07, 0.036, 0.02))
+    sweep = Trajectory(np.vstack([path(10, dz=-0.0004).positions, path(40, dx=0.00075).positions[1:] + [0, 0, -0.004]]),
+                       np.concatenate([np.zeros(11), np.linspace(0, np.pi / 2, 41)[1:]]))
+    s = Scene(particles, SPACING ** 3, effectors.RECTANGLE, sweep, start=[-0.015, 0.0, particles[:, 2].max()])
+    limited = sim.forward(s, params(mu_effector=2.0))
+    everywhere = lambda step: (sim._origin - 1.0, sim._origin + 1.0)  # noqa: E731 (metres beyond the box)
+    monkeypatch.setattr(sim, "_effector_reach", everywhere)
+    assert np.array_equal(sim.forward(s, params(mu_effector=2.0)), limited)
+
+
+@ti.kernel
+def elastic_bound(sigma: ti.types.ndarray(), yield_strain: float, out: ti.types.ndarray()):
+    for i in range(sigma.shape[0]):
+        stretch = ti.Vector([sigma[i, 0], sigma[i, 1], sigma[i, 2]])
+        out[i] = ti.select(surely_elastic(stretch, 2.0 * yield_strain, 1.0), 1, 0)
+
+
+def test_logarithm_free_elastic_bound_never_claims_a_yielding_stretch(sim):
+    """Stretches around the von Mises surface: whatever the bound calls elastic lies inside it by the
+    exact Hencky-strain test, and it settles most of those well inside (so the shortcut is taken)."""
+    rng = np.random.default_rng(3)
+    yield_strain = 0.05
+    direction = rng.normal(size=(20000, 3))
+    direction -= direction.mean(axis=1, keepdims=True)
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    dev_norm = yield_strain * rng.uniform(0.0, 1.5, size=(20000, 1))
+    sigma = np.exp(dev_norm * direction + rng.normal(0.0, 0.1, size=(20000, 1)))  # plus volume change
+    out = np.zeros(len(sigma), dtype=np.int32)
+    elastic_bound(sigma, yield_strain, out)
+    claimed = out.astype(bool)
+    assert (dev_norm[claimed, 0] <= yield_strain).all()
+    assert claimed[dev_norm[:, 0] < 0.7 * yield_strain].mean() > 0.9
 
 
 # ---------------------------------------------------------------- reuse without recompiling
