@@ -4,8 +4,10 @@ kinematic rigid effector (SPEC §4).
 One substep (state slot s → s + 1) is two kernels, :meth:`Simulator.tabulate_contact` (loop 1) and
 :meth:`Simulator.advance` (loops 2–5):
 
-1. grid: clear, and tabulate effector distance, normal and velocity at the nodes;
-2. particles: effector contact geometry; trial deformation F_tr = (I + Δt C) F, its SVD, von Mises
+1. particles and grid: effector distance, normal and velocity at the particles and at the nodes within
+   the effector's reach in this step; the substep's grid region (the nodes the particles' stencils
+   reach: all grid work of the substep stays in it), cleared;
+2. particles: trial deformation F_tr = (I + Δt C) F, its SVD, von Mises
    return mapping in Hencky strain, the new F, and the fixed-corotated Kirchhoff stress as APIC affine
    momentum;
 3. particles: APIC/MLS transfer of mass and momentum to the grid (quadratic B-splines);
@@ -16,8 +18,8 @@ One substep (state slot s → s + 1) is two kernels, :meth:`Simulator.tabulate_c
 The reverse mode is written by hand (Taichi's automatic one compiles slowly and adds every particle's
 contribution to a parameter into one shared number): per substep, :meth:`Simulator.tabulate_contact`
 and :meth:`Simulator.restore` recompute the grid of the forward pass from the substep's state and SVD,
-and :meth:`Simulator.adjoint` runs loops 2–5 backwards in three. Gradients of the state live in two slots (of the substep being
-differentiated and of the one after it). Gradients of the material parameters are summed per particle
+and :meth:`Simulator.adjoint` runs loops 2–5 backwards in three. Gradients of the state live in two
+slots (of the substep being differentiated and of the one after it). Gradients of the material parameters are summed per particle
 and those of the friction coefficients per grid node, and reduced once per backward pass.
 
 Memory: the particle state is kept at the start of every step (a checkpoint) and for every substep of
