@@ -19,8 +19,9 @@ The reverse mode is written by hand (Taichi's automatic one compiles slowly and 
 contribution to a parameter into one shared number): per substep, :meth:`Simulator.tabulate_contact`
 and :meth:`Simulator.restore` recompute the grid of the forward pass from the substep's state and SVD,
 and :meth:`Simulator.adjoint` runs loops 2–5 backwards in three. Gradients of the state live in two
-slots (of the substep being differentiated and of the one after it). Gradients of the material parameters are summed per particle
-and those of the friction coefficients per grid node, and reduced once per backward pass.
+slots (of the substep being differentiated and of the one after it). Gradients of the material
+parameters are summed per particle and those of the friction coefficients per grid node, and reduced
+once per backward pass.
 
 Memory: the particle state is kept at the start of every step (a checkpoint) and for every substep of
 the one step being differentiated. When the whole trajectory's substep states (and SVDs) fit in
@@ -46,7 +47,6 @@ GRAVITY = -9.81
 
 WALL_CELLS = 3
 """Nodes this close to the box's faces stop outward motion (the box walls)."""
-
 
 CONTACT_MARGIN_CELLS = 2
 """Points this many cells outside the effector's bounding box are tested for contact (its signed distance
@@ -456,9 +456,9 @@ class Simulator:
     # ------------------------------------------------------------------ substep kernels
     @ti.kernel
     def tabulate_contact(self, s: ti.i32, serial: ti.template()):
-        """Start substep s: tabulate the effector's contact geometry at the particles, find the region of
-        grid nodes their stencils reach (where the substep's grid work happens), clear it and tabulate the
-        contact geometry at its nodes within the effector's reach (a kernel of its own, shared by
+        """Start substep s: find the region of grid nodes the particles' stencils reach (where the
+        substep's grid work happens), clear it, and tabulate the effector's contact geometry at the
+        particles and at the region's nodes within the effector's reach (a kernel of its own, shared by
         :meth:`advance` and :meth:`restore`: the effector's shapes are most of the compile time)."""
         self.region_lo[None] = ti.Vector(self.grid_shape)
         self.region_hi[None] = ti.Vector.zero(ti.i32, 3)
