@@ -51,6 +51,11 @@ def test_on_rung_0_every_loss_has_its_minimum_at_the_truth(rung0):
     assert len(minima) == len(SCAN_PARAMETERS) * len(LADDER_LOSSES)
     assert (minima.argmin == minima.truth).all(), minima
     assert (minima.loss_at_truth_mm < 1e-9).all()
+    # at R0 the height-map loss is the distance to the truth's map: its span over the scan is at least the
+    # mean distance of the scan's simulations from the truth's, the signal
+    assert (minima.signal_mm > 1.0).all()
+    height = minima[minima.loss == "heightmap"]
+    assert (height.loss_span_mm >= height.signal_mm - 1e-9).all()
 
 
 @pytest.mark.parametrize("loss", ["prt_emd", "pcd_cd"])

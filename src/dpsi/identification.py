@@ -69,7 +69,8 @@ def scene(dp: Datapoint) -> Scene:
 
 def targets(dp: Datapoint) -> Targets:
     """The loss targets of a datapoint."""
-    return Targets(pcd=dp.pcd_target, prt=dp.prt_target, heightmap=dp.heightmap_target())
+    return Targets(pcd=dp.pcd_target, prt=dp.prt_target, heightmap=dp.heightmap_target(),
+                   heightmap_interior=dp.interior_heightmap_target())
 
 
 def evaluate(simulator: Simulator, dp: Datapoint, params: Parameters) -> dict[str, float]:
