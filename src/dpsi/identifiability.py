@@ -30,7 +30,7 @@ from dpsi.datapoint import Datapoint
 from dpsi.heightmap import heightmap_distance_mm
 from dpsi.identification import evaluate, scene, targets
 from dpsi.losses import loss_by_name, simulated_heightmap
-from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, LOWER, UPPER, Parameters
+from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, LOWER, UPPER, Parameters, scale_free
 from dpsi.simulation import Simulator, SimulatorConfig
 
 RUNGS = {
@@ -47,7 +47,8 @@ the height map inside the outlines."""
 COLUMNS = ("rung", "level", "loss", "dataset", "seed", "parameter", "truth", "estimate", "rel_error",
            "loss_at_truth_mm", "loss_at_estimate_mm", "val_heightmap_mm", "val_heightmap_hand_picked_mm",
            "val_heightmap_no_motion_mm")
-"""Columns of the ladder table: one row per run and identified parameter."""
+"""Columns of the ladder table: one row per run and identified parameter, and per scale-free combination
+(:data:`dpsi.parameters.SCALE_FREE`: E/rho, yield_stress/E) of the identified ones."""
 
 
 def check_rung(rung: str) -> str:
@@ -118,12 +119,12 @@ def run_rows(summary: dict, log: pd.DataFrame, ref: dict) -> list[dict]:
               "val_heightmap_mm": best["validation"]["heightmap_mm"] if best else math.nan,
               "val_heightmap_hand_picked_mm": ref["val_heightmap_hand_picked_mm"],
               "val_heightmap_no_motion_mm": ref["val_heightmap_no_motion_mm"]}
-    rows = []
-    for name in IDENTIFIED[level]:
-        true, estimate = ref["truth"][name], best["parameters"][name] if best else math.nan
-        rows.append({**common, "parameter": name, "truth": true, "estimate": estimate,
-                     "rel_error": abs(estimate - true) / abs(true)})
-    return rows
+    truth = {name: ref["truth"][name] for name in IDENTIFIED[level]}
+    estimate = {name: best["parameters"][name] if best else math.nan for name in IDENTIFIED[level]}
+    truth.update(scale_free(truth))
+    estimate.update(scale_free(estimate))
+    return [{**common, "parameter": name, "truth": truth[name], "estimate": estimate[name],
+             "rel_error": abs(estimate[name] - truth[name]) / abs(truth[name])} for name in truth]
 
 
 RUN_LABELS = ("rung", "level", "loss", "dataset", "seed")
