@@ -26,6 +26,8 @@ def bad_config(tmp_path, edit):
     (lambda c: c["identification"].update(datasets=["3-mix"]), "3-mix"),
     (lambda c: c.update(colour="blue"), "colour"),
     (lambda c: c["reconstruction"].update(density=-1), "density"),
+    (lambda c: c["identification"].update(known={"density": 1200}), "density"),
+    (lambda c: c["identification"].update(known={"rho": 5000}), "5000"),
 ])
 def test_bad_config_fails_at_start_up(tmp_path, edit, message):
     run = snakemake(tmp_path, "-n", "tables", config=bad_config(tmp_path, edit))
