@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from dpsi.heightmap import height_map, height_map_owners, heightmap_distance_mm
+from dpsi.heightmap import interior_cells, height_map, height_map_owners, heightmap_distance_mm
 
 CELL = 0.11 / 32  # m
 
@@ -109,3 +109,19 @@ def test_a_particle_covers_exactly_the_cells_its_footprint_overlaps():
 def test_negative_particle_size_is_named():
     with pytest.raises(ValueError, match="particle size"):
         height_map(np.zeros((1, 3)), (0.0, 0.0), particle_size=-0.001)
+
+
+def test_interior_cells_are_inside_every_outline_and_one_cell_in():
+    particles, a = box_particles(3e7)
+    hm = height_map(particles, (0.0, 0.0), particle_size=a)
+    shifted = height_map(particles + (2 * CELL, 0.0, 0.0), (0.0, 0.0), particle_size=a)
+    inside = interior_cells(hm, floor=0.0)
+    both = interior_cells(hm, shifted, floor=0.0)
+    covered = hm > 0.0
+    along_x, along_y = covered.sum(axis=0).max(), covered.sum(axis=1).max()  # the outline's extent in cells
+    assert inside.sum() == (along_x - 2) * (along_y - 2)  # a rectangle one cell in from the outline
+    assert not inside[~covered].any() and not both[shifted == 0.0].any()
+    assert both.sum() == inside.sum() - 2 * (along_y - 2)  # the shift along x loses two rows of cells
+    assert interior_cells(hm, floor=0.0, erosion=0).sum() == covered.sum()
+    with pytest.raises(ValueError, match="at least one"):
+        interior_cells(floor=0.0)

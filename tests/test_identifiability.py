@@ -12,7 +12,7 @@ from dpsi.effectors import by_name
 from dpsi.identifiability import (COLUMNS, LADDER_LOSSES, SCAN_PARAMETERS, ladder_table, loss_minima, recovery_summary,
                                   reference, same_model_datapoint)
 from dpsi.identification import identify
-from dpsi.parameters import IDENTIFIED
+from dpsi.parameters import IDENTIFIED, SCALE_FREE
 from dpsi.simulation import Simulator
 from test_identification import CONFIG, SPACING, TRUTH, block, poke
 
@@ -51,6 +51,11 @@ def test_on_rung_0_every_loss_has_its_minimum_at_the_truth(rung0):
     assert len(minima) == len(SCAN_PARAMETERS) * len(LADDER_LOSSES)
     assert (minima.argmin == minima.truth).all(), minima
     assert (minima.loss_at_truth_mm < 1e-9).all()
+    # at R0 the height-map loss is the distance to the truth's map: its span over the scan is at least the
+    # mean distance of the scan's simulations from the truth's, the signal
+    assert (minima.signal_mm > 1.0).all()
+    height = minima[minima.loss == "heightmap"]
+    assert (height.loss_span_mm >= height.signal_mm - 1e-9).all()
 
 
 @pytest.mark.parametrize("loss", ["prt_emd", "pcd_cd"])
@@ -76,10 +81,14 @@ def test_ladder_table_has_a_row_per_identified_parameter_with_relative_errors():
            "val_heightmap_no_motion_mm": 900.0}
     runs = [fake_run(s, {**truth, "E": truth["E"] * (1 + 0.1 * (s + 1))}, 40.0 + s) for s in (1, 0)]
     table = ladder_table([s for s, _ in runs], pd.concat([log for _, log in runs]), {("R0", 1, "1-round"): ref})
-    assert list(table.columns) == list(COLUMNS) and len(table) == 2 * len(IDENTIFIED[1])
-    assert list(table.seed) == [0] * 4 + [1] * 4
+    per_run = len(IDENTIFIED[1]) + len(SCALE_FREE)
+    assert list(table.columns) == list(COLUMNS) and len(table) == 2 * per_run
+    assert list(table.seed) == [0] * per_run + [1] * per_run
     e = table[table.parameter == "E"].set_index("seed")
     assert e.rel_error.to_dict() == pytest.approx({0: 0.1, 1: 0.2})
     assert e.loss_at_estimate_mm.to_dict() == {0: 40.0, 1: 41.0}
-    assert (table.loc[table.parameter != "E", "rel_error"] == 0).all()
+    # E off by 10 % puts E/ρ off by 10 % and the yield strain σ_y/E off by 1 − 1/1.1
+    ratios = table[table.seed == 0].set_index("parameter").rel_error
+    assert ratios["E/rho"] == pytest.approx(0.1) and ratios["yield_stress/E"] == pytest.approx(1 - 1 / 1.1)
+    assert (table.loc[~table.parameter.isin(["E", *SCALE_FREE]), "rel_error"] == 0).all()
     assert recovery_summary(table).loc[("R0", 1, "prt_emd"), "E"] == pytest.approx(0.15)

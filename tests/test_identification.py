@@ -80,6 +80,17 @@ def test_recovers_young_modulus_and_yield_stress(simulator, problem, tmp_path):
     assert summary["best"]["parameters"]["E"] == log.E[best]
 
 
+def test_a_known_parameter_is_held_and_the_others_identified(simulator, problem, tmp_path):
+    summary = identify(tmp_path, 1, "prt_cd", *problem, iterations=2, initial=HAND_PICKED, truth=TRUTH,
+                       simulator=simulator, progress=io.StringIO(), known={"rho": 1250.0})
+    log = pd.read_csv(tmp_path / LOG_FILE)
+    assert (log.rho == 1250.0).all() and log.E.nunique() == 3 and log.yield_stress.nunique() == 3
+    assert summary["known"] == ["rho"]
+    with pytest.raises(IdentificationError, match=r"different run.*\['known'\]"):  # a state is not reused
+        identify(tmp_path, 1, "prt_cd", *problem, iterations=2, initial=HAND_PICKED.replace(rho=1250.0),
+                 simulator=simulator, progress=io.StringIO())
+
+
 class Interrupt(io.StringIO):
     """A progress stream that raises KeyboardInterrupt on its ``after``-th line, i.e. right after a row
     has been saved."""
@@ -199,6 +210,9 @@ OUT_OF_RANGE = Parameters(E=1e6, nu=0.4, rho=1330.0, yield_stress=1e3, mu_table=
     ({"iterations": 0}, "iterations must be a positive integer"),
     ({"seed": -1}, "seed must be"),
     ({"initial": OUT_OF_RANGE}, "initial value: parameter E=1000000.0"),
+    ({"known": {"mu_table": 1.0}}, "'mu_table'] are not identified at level 1"),
+    ({"known": {"E": 5e4, "nu": 0.3, "rho": 1200.0, "yield_stress": 2500.0}}, "every parameter of level 1 is known"),
+    ({"known": {"rho": 5000.0}}, "known value: parameter rho=5000.0"),
     ({"simulator": SimpleNamespace(config=SimulatorConfig(max_particles=100), forward=_failing)},
      "training datapoint 'round' has 245 particles, more than the simulator's max_particles=100"),
     ({"simulator": SimpleNamespace(config=dataclasses.replace(CONFIG, step_dt=0.005), forward=_failing)},

@@ -140,7 +140,7 @@ def test_registry_maps_names_to_distance_and_target():
     sim, pcd = random_sets(seed=2)
     _, prt = random_sets(seed=3)
     targets = Targets(pcd=pcd, prt=prt, heightmap=HeightMapTarget(np.zeros((32, 32)), (0.0, 0.0)))
-    assert set(LOSSES) == {"pcd_cd", "prt_cd", "pcd_emd", "prt_emd", "heightmap", "neg_heightmap"}
+    assert set(LOSSES) == {"pcd_cd", "prt_cd", "pcd_emd", "prt_emd", "heightmap", "neg_heightmap", "heightmap_interior"}
     assert loss_by_name("pcd_cd")(sim, targets)[0] == chamfer(sim, pcd)[0]
     assert loss_by_name("prt_cd")(sim, targets)[0] == chamfer(sim, prt)[0]
     assert loss_by_name("pcd_emd")(sim, targets)[0] == earth_movers(sim, pcd)[0]
@@ -190,3 +190,28 @@ def test_heightmap_gradient_with_particle_cubes_matches_finite_differences():
     assert np.abs(gradient[:, 2]).max() >= 2000  # some particle holds more than one cell
     held = height_map_owners(sim, target.centre_xy, cells=4, particle_size=0.03)
     assert value == pytest.approx(1000 * np.abs(sim[held, 2] + 0.015 - target.heights).sum())
+
+
+def test_heightmap_counted_on_some_cells_sums_and_differentiates_only_those():
+    sim, target = heightmap_setup()
+    cells = np.zeros((4, 4), bool)
+    cells[1:3, 1:3] = True
+    masked = target._replace(cells=cells)
+    value, gradient = heightmap_loss(sim, masked)
+    full = np.abs(height_map(sim, target.centre_xy, cells=4) - target.heights)
+    assert value == pytest.approx(1000 * full[cells].sum())
+    assert value < heightmap_loss(sim, target)[0]
+    held = height_map_owners(sim, target.centre_xy, cells=4)
+    assert set(np.flatnonzero(gradient[:, 2])) == set(held[cells])
+    owners = lambda points, t: tuple(height_map_owners(points, t.centre_xy, cells=4).ravel())  # noqa: E731
+    np.testing.assert_allclose(gradient, finite_difference(heightmap_loss, sim, masked, owners), rtol=1e-5, atol=1e-3)
+    with pytest.raises(ValueError, match="mask has shape"):
+        heightmap_loss(sim, target._replace(cells=np.ones((3, 3), bool)))
+
+
+def test_interior_loss_uses_the_interior_target():
+    sim, target = heightmap_setup()
+    cells = np.eye(4, dtype=bool)
+    targets = Targets(heightmap=target, heightmap_interior=target._replace(cells=cells))
+    expected = 1000 * np.abs(height_map(sim, target.centre_xy, cells=4) - target.heights)[cells].sum()
+    assert loss_by_name("heightmap_interior")(sim, targets)[0] == pytest.approx(expected)

@@ -77,6 +77,23 @@ def test_gradient_matches_finite_differences(sim, effector, tolerance):
         assert grads[name] == pytest.approx(fd, rel=tolerance), name
 
 
+def test_scaling_stiffness_density_and_yield_stress_together_changes_nothing(sim):
+    """Dimensional analysis: stresses scale with E and σ_y, inertia and weight with ρ, and the effector moves
+    on a prescribed path, so multiplying E, ρ and σ_y by one factor leaves every particle's path unchanged.
+    A loss then has no slope along that direction: E ∂L/∂E + ρ ∂L/∂ρ + σ_y ∂L/∂σ_y = 0 (Euler's theorem)."""
+    particles = block(jitter=5e-4)
+    weights = np.random.default_rng(2).normal(size=particles.shape)
+    s = scene(particles, path(5, dx=0.0005, dz=-0.0002), effectors.RECTANGLE, depth=0.002)
+    theta = params(yield_stress=1100.0, mu_table=0.5, mu_effector=0.5)
+    scaled = theta.replace(E=1.5 * theta.E, rho=1.5 * theta.rho, yield_stress=1.5 * theta.yield_stress)
+    np.testing.assert_allclose(sim.forward(s, scaled), sim.forward(s, theta), rtol=0, atol=1e-12)
+    assert np.abs(sim.forward(s, theta.replace(E=1.5 * theta.E)) - sim.forward(s, theta)).max() > 1e-6
+    sim.forward(s, theta)
+    g = sim.backward(weights)
+    terms = [theta.E * g["E"], theta.rho * g["rho"], theta.yield_stress * g["yield_stress"]]
+    assert abs(sum(terms)) < 1e-6 * sum(abs(t) for t in terms), terms
+
+
 F32_TOLERANCE = 0.1
 """Largest relative error of a float32 gradient against the exact derivative (float64 central differences)
 in the scene of :func:`float32_scene`; measured: 0.9 % (E, ν) to 5.9 % (μ_effector)."""

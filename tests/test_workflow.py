@@ -26,6 +26,8 @@ def bad_config(tmp_path, edit):
     (lambda c: c["identification"].update(datasets=["3-mix"]), "3-mix"),
     (lambda c: c.update(colour="blue"), "colour"),
     (lambda c: c["reconstruction"].update(density=-1), "density"),
+    (lambda c: c["identification"].update(known={"density": 1200}), "density"),
+    (lambda c: c["identification"].update(known={"rho": 5000}), "5000"),
 ])
 def test_bad_config_fails_at_start_up(tmp_path, edit, message):
     run = snakemake(tmp_path, "-n", "tables", config=bad_config(tmp_path, edit))
@@ -146,7 +148,11 @@ def test_tiny_workflow_makes_every_table(tiny_run):
     recovery = pd.read_csv(tables / "recovery_error.csv")
     assert list(recovery.columns) == ["level", "loss", "dataset", "seed", "parameter", "truth", "estimate",
                                       "rel_error"]
-    assert len(recovery) == 12 and recovery.rel_error.notna().all()
+    assert len(recovery) == 2 * (6 + 2) and recovery.rel_error.notna().all()  # 2 runs × (6 parameters + E/ρ, σ_y/E)
+    truth = recovery[recovery.seed == recovery.seed.iloc[0]].drop_duplicates(["level", "parameter"]).set_index(
+        ["level", "parameter"]).truth
+    level = recovery.level.iloc[0]
+    assert truth[(level, "E/rho")] == pytest.approx(truth[(level, "E")] / truth[(level, "rho")])
     for name in ("motions", "parameters", "best_params", "ood_heightmap", "recovery_error"):
         assert (tables / f"{name}.md").read_text().count("|") > 10
         assert r"\toprule" in (tables / f"{name}.tex").read_text()

@@ -10,6 +10,7 @@ import numpy as np
 
 from .effectors import Effector
 from .files import load_arrays, save_arrays
+from .heightmap import height_map, interior_cells
 from .losses import HeightMapTarget
 from .motions import Trajectory
 
@@ -45,6 +46,14 @@ class Datapoint:
     def heightmap_target(self) -> HeightMapTarget:
         """The captured after height map as a loss target, with this datapoint's particle cubes."""
         return HeightMapTarget(self.heightmap, self.centre_xy, self.table_z, self.particle_size)
+
+    def interior_heightmap_target(self) -> HeightMapTarget:
+        """The captured after height map counted only inside the outlines of both the target and the before
+        particles (one cell in from each): the outline is where reconstruction errors dominate."""
+        target = self.heightmap_target()
+        before = height_map(self.particles, self.centre_xy, cells=self.heightmap.shape[0], floor=self.table_z,
+                            particle_size=self.particle_size)
+        return target._replace(cells=interior_cells(self.heightmap, before, floor=self.table_z))
 
 _ARRAYS = ("particles", "start", "pcd_target", "prt_target", "heightmap", "centre_xy", "trajectory_positions",
            "trajectory_yaw", "effector_sdf")

@@ -15,6 +15,7 @@ treats points as points: a fused cloud, or surface samples.
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 SIZE = 0.11
 """Side of the height-map square in m."""
@@ -96,6 +97,17 @@ def height_map(points, centre_xy, size: float = SIZE, cells: int = CELLS, floor:
     return heights
 
 
+def interior_cells(*heights, floor: float, erosion: int = 1) -> np.ndarray:
+    """Boolean mask (cells, cells) of the cells inside the outline of every one of the height maps
+    ``heights`` (m): above ``floor`` (m) in each, then shrunk by ``erosion`` cells so that no cell on an
+    outline is kept. The outline of a reconstructed object is where its shape errors concentrate
+    (docs/identifiability.md); the interior is where a motion's dent and bulge are measured."""
+    if not heights:
+        raise ValueError("interior_cells needs at least one height map")
+    inside = np.logical_and.reduce([np.asarray(h, dtype=float) > floor + 1e-9 for h in heights])
+    return ndimage.binary_erosion(inside, iterations=erosion) if erosion > 0 else inside
+
+
 def heightmap_distance_mm(a, b) -> float:
     """Distance Σ_ij |a_ij − b_ij| in mm between two height maps given in m."""
     a = np.asarray(a, dtype=float)
@@ -105,4 +117,4 @@ def heightmap_distance_mm(a, b) -> float:
     return float(np.abs(a - b).sum() * 1000.0)
 
 
-__all__ = ["SIZE", "CELLS", "TABLE_HEIGHT", "height_map_owners", "height_map", "heightmap_distance_mm"]
+__all__ = ["SIZE", "CELLS", "TABLE_HEIGHT", "height_map_owners", "height_map", "interior_cells", "heightmap_distance_mm"]

@@ -30,7 +30,7 @@ from dpsi.datapoint import Datapoint
 from dpsi.heightmap import heightmap_distance_mm
 from dpsi.identification import evaluate, scene, targets
 from dpsi.losses import loss_by_name, simulated_heightmap
-from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, LOWER, UPPER, Parameters
+from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, LOWER, UPPER, Parameters, scale_free
 from dpsi.simulation import Simulator, SimulatorConfig
 
 RUNGS = {
@@ -40,13 +40,15 @@ RUNGS = {
 }
 """The rungs, from the easiest to the real pipeline."""
 
-LADDER_LOSSES = ("pcd_cd", "prt_cd", "pcd_emd", "prt_emd", "heightmap")
-"""The training losses whose value at the truth the ladder reports: the four of SPEC §5 and the height map."""
+LADDER_LOSSES = ("pcd_cd", "prt_cd", "pcd_emd", "prt_emd", "heightmap", "heightmap_interior")
+"""The training losses whose value at the truth the ladder reports: the four of SPEC §5, the height map and
+the height map inside the outlines."""
 
 COLUMNS = ("rung", "level", "loss", "dataset", "seed", "parameter", "truth", "estimate", "rel_error",
            "loss_at_truth_mm", "loss_at_estimate_mm", "val_heightmap_mm", "val_heightmap_hand_picked_mm",
            "val_heightmap_no_motion_mm")
-"""Columns of the ladder table: one row per run and identified parameter."""
+"""Columns of the ladder table: one row per run and identified parameter, and per scale-free combination
+(:data:`dpsi.parameters.SCALE_FREE`: E/rho, yield_stress/E) of the identified ones."""
 
 
 def check_rung(rung: str) -> str:
@@ -117,12 +119,12 @@ def run_rows(summary: dict, log: pd.DataFrame, ref: dict) -> list[dict]:
               "val_heightmap_mm": best["validation"]["heightmap_mm"] if best else math.nan,
               "val_heightmap_hand_picked_mm": ref["val_heightmap_hand_picked_mm"],
               "val_heightmap_no_motion_mm": ref["val_heightmap_no_motion_mm"]}
-    rows = []
-    for name in IDENTIFIED[level]:
-        true, estimate = ref["truth"][name], best["parameters"][name] if best else math.nan
-        rows.append({**common, "parameter": name, "truth": true, "estimate": estimate,
-                     "rel_error": abs(estimate - true) / abs(true)})
-    return rows
+    truth = {name: ref["truth"][name] for name in IDENTIFIED[level]}
+    estimate = {name: best["parameters"][name] if best else math.nan for name in IDENTIFIED[level]}
+    truth.update(scale_free(truth))
+    estimate.update(scale_free(estimate))
+    return [{**common, "parameter": name, "truth": truth[name], "estimate": estimate[name],
+             "rel_error": abs(estimate[name] - truth[name]) / abs(truth[name])} for name in truth]
 
 
 RUN_LABELS = ("rung", "level", "loss", "dataset", "seed")
@@ -180,19 +182,26 @@ def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: flo
 def loss_minima(simulator: Simulator, dp: Datapoint, truth: Parameters,
                 losses: Sequence[str] = LADDER_LOSSES) -> pd.DataFrame:
     """One-parameter scans through ``truth`` (:data:`SCAN_PARAMETERS` at :data:`SCAN_FACTORS` times the truth,
-    within their ranges) of each loss on ``dp``: per (parameter, loss) the value (SI) with the lowest loss and
-    the loss (mm) there and at the truth. A loss whose minimum is not at the truth is biased on these data,
-    whatever the optimiser does."""
+    within their ranges) of each loss on ``dp``: per (parameter, loss) the value (SI) with the lowest loss, the
+    loss (mm) there and at the truth, how much the loss varies over the scan (``loss_span_mm``, max − min), and
+    how much the parameter changes the simulation itself (``signal_mm``: the mean height-map distance of the
+    scan's simulations from the one at the truth). A loss whose minimum is not at the truth is biased on these
+    data, whatever the optimiser does; a span far below the signal means the data hide what the parameter
+    does."""
     rows = []
     for name in SCAN_PARAMETERS:
         true = getattr(truth, name)
         values = [true * f for f in SCAN_FACTORS if LOWER[name] <= true * f <= UPPER[name]]
         finals = [simulator.forward(scene(dp), truth.replace(**{name: v}), keep_substeps=False) for v in values]
+        maps = [simulated_heightmap(final, dp.heightmap_target()) for final in finals]
+        at_truth = values.index(true)
+        signal = np.mean([heightmap_distance_mm(m, maps[at_truth]) for k, m in enumerate(maps) if k != at_truth])
         for loss in losses:
             scan = [loss_by_name(loss)(final, targets(dp))[0] for final in finals]
             best = int(np.argmin(scan))
             rows.append({"parameter": name, "loss": loss, "truth": true, "argmin": values[best],
-                         "loss_at_argmin_mm": scan[best], "loss_at_truth_mm": scan[values.index(true)]})
+                         "loss_at_argmin_mm": scan[best], "loss_at_truth_mm": scan[at_truth],
+                         "loss_span_mm": max(scan) - min(scan), "signal_mm": float(signal)})
     return pd.DataFrame(rows)
 
 

@@ -69,7 +69,8 @@ def scene(dp: Datapoint) -> Scene:
 
 def targets(dp: Datapoint) -> Targets:
     """The loss targets of a datapoint."""
-    return Targets(pcd=dp.pcd_target, prt=dp.prt_target, heightmap=dp.heightmap_target())
+    return Targets(pcd=dp.pcd_target, prt=dp.prt_target, heightmap=dp.heightmap_target(),
+                   heightmap_interior=dp.interior_heightmap_target())
 
 
 def evaluate(simulator: Simulator, dp: Datapoint, params: Parameters) -> dict[str, float]:
@@ -170,10 +171,27 @@ def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_t
                                       "reconstruction.density in the workflow config)")
 
 
-def _fingerprint(level, loss, seed, initial: Parameters, training, validation_set) -> dict:
+def hold_known(initial: Parameters, known: Mapping[str, float] | None, level: int) -> Parameters:
+    """``initial`` with the ``known`` parameters (name → value in SI, e.g. a weighed sample's density)
+    set; they must be identified at ``level`` (the others are fixed anyway), in range, and leave at least
+    one parameter to identify."""
+    known = dict(known or {})
+    wrong = sorted(set(known) - set(IDENTIFIED[level]))
+    if wrong:
+        raise IdentificationError(f"known parameter(s) {wrong} are not identified at level {level}; "
+                                  f"known values may be given for {list(IDENTIFIED[level])}")
+    if set(known) == set(IDENTIFIED[level]):
+        raise IdentificationError(f"every parameter of level {level} is known: nothing left to identify")
+    try:
+        return initial.replace(**{n: float(v) for n, v in known.items()})
+    except ValueError as err:
+        raise IdentificationError(f"known value: {err}") from None
+
+
+def _fingerprint(level, loss, seed, initial: Parameters, training, validation_set, known=()) -> dict:
     """The run's settings, named in an error when a stored state differs from them."""
     describe = lambda dps: [[dp.id, len(dp.particles), dp.trajectory.n_steps] for dp in dps]  # noqa: E731
-    return {"level": level, "loss": loss, "seed": seed, "initial": initial.as_dict(),
+    return {"level": level, "loss": loss, "seed": seed, "initial": initial.as_dict(), "known": sorted(known),
             "training": describe(training), "validation": describe(validation_set)}
 
 
@@ -278,7 +296,8 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
              validation_set: Sequence[Datapoint], seed: int = 0, iterations: int = 100,
              initial: Parameters | None = None, truth: Parameters | None = None,
              simulator: Simulator | None = None, progress: TextIO | None = None,
-             restart_if_different: bool = False, labels: Mapping | None = None) -> dict:
+             restart_if_different: bool = False, labels: Mapping | None = None,
+             known: Mapping[str, float] | None = None) -> dict:
     """Run (or resume) an identification into ``out_dir`` and return its summary (see module doc).
 
     ``initial``: the starting θ (default random from ``seed`` in the level's ranges; at level 1 its frictions
@@ -287,13 +306,17 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
     :class:`SimulatorConfig` defaults); ``progress``: stream for progress messages (default stderr);
     ``restart_if_different``: discard a state file left by a different run (other settings, datapoints,
     simulator settings or library code) instead of refusing to continue it; ``labels``: what the run is
-    (level, loss, dataset, seed, start, material), written into its summary for the reports.
+    (level, loss, dataset, seed, start, material), written into its summary for the reports; ``known``:
+    parameters held at given values instead of identified (see :func:`hold_known`; multiplying E, ρ and
+    σ_y by one factor changes no motion, so a measured ρ is what makes E and σ_y identifiable).
     """
     config = simulator.config if simulator is not None else SimulatorConfig()
-    initial = check_run(level, loss, training, validation_set, seed, iterations, initial, config)
+    initial = hold_known(check_run(level, loss, training, validation_set, seed, iterations, initial, config),
+                         known, level)
+    held = tuple(known or ())
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    fingerprint = _fingerprint(level, loss, seed, initial, training, validation_set)
+    fingerprint = _fingerprint(level, loss, seed, initial, training, validation_set, held)
     key = inputs_key(training, validation_set, config)
     if restart_if_different and (out_dir / STATE_FILE).exists():
         try:
@@ -301,7 +324,7 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
         except IdentificationError:
             (out_dir / STATE_FILE).unlink()
     state = _load_state(out_dir / STATE_FILE, fingerprint, key)
-    adam = Adam.from_state(state["adam"]) if state else Adam.for_level(initial, level)
+    adam = Adam.from_state(state["adam"]) if state else Adam.for_level(initial, level, held)
     rows: list[dict] = state["log"] if state else []
     if rows and rows[-1]["iteration"] > iterations:
         raise IdentificationError(f"{out_dir / STATE_FILE} already has {rows[-1]['iteration']} iterations, "
@@ -336,4 +359,5 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
 
 
 __all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "IdentificationError", "scene", "targets",
-           "inputs_key", "evaluate", "training_gradient", "validation", "check_run", "summarise", "identify"]
+           "inputs_key", "evaluate", "training_gradient", "validation", "check_run", "hold_known", "summarise",
+           "identify"]

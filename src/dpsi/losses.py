@@ -83,13 +83,15 @@ def earth_movers(sim, target) -> LossResult:
 
 class HeightMapTarget(NamedTuple):
     """A real height map (cells, cells) in m over the default 0.11 m square, the square's centre
-    (2,) in m (SPEC §3.5), the height (m) of cells no point falls in (the table), and the side (m) of the
-    cube each simulated particle stands for (see :mod:`dpsi.heightmap`; 0 treats particles as points)."""
+    (2,) in m (SPEC §3.5), the height (m) of cells no point falls in (the table), the side (m) of the
+    cube each simulated particle stands for (see :mod:`dpsi.heightmap`; 0 treats particles as points),
+    and optionally the cells (boolean (cells, cells)) the distance counts; None counts all."""
 
     heights: np.ndarray
     centre_xy: np.ndarray
     floor: float = 0.0
     particle_size: float = 0.0
+    cells: np.ndarray | None = None
 
 
 def simulated_heightmap(sim, target: HeightMapTarget) -> np.ndarray:
@@ -100,9 +102,9 @@ def simulated_heightmap(sim, target: HeightMapTarget) -> np.ndarray:
 
 
 def heightmap_loss(sim, target: HeightMapTarget) -> LossResult:
-    """Height-map distance (mm) of the particles to a real height map; the gradient of each
-    cell goes to the z of the particle holding that cell's highest z (SPEC §3.5, §7.7), summed over the
-    cells a particle holds."""
+    """Height-map distance (mm) of the particles to a real height map, over the target's ``cells`` (all
+    by default); the gradient of each counted cell goes to the z of the particle holding that cell's
+    highest z (SPEC §3.5, §7.7), summed over the cells a particle holds."""
     sim = check_points(sim, "simulated points", finite=False)
     if not np.isfinite(sim).all():
         return _not_finite(sim)
@@ -111,10 +113,13 @@ def heightmap_loss(sim, target: HeightMapTarget) -> LossResult:
         raise ValueError(f"target height map must be square (cells, cells), got {heights.shape}")
     owners = height_map_owners(sim, target.centre_xy, cells=heights.shape[0], particle_size=target.particle_size)
     simulated = simulated_heightmap(sim, target)
-    filled = owners >= 0
+    counted = np.ones(heights.shape, bool) if target.cells is None else np.asarray(target.cells, bool)
+    if counted.shape != heights.shape:
+        raise ValueError(f"height-map cells mask has shape {counted.shape}, the map {heights.shape}")
+    filled = (owners >= 0) & counted
     gradient = np.zeros_like(sim)
     np.add.at(gradient[:, 2], owners[filled], np.sign(simulated[filled] - heights[filled]) * MM_PER_M)
-    return heightmap_distance_mm(simulated, heights), gradient
+    return heightmap_distance_mm(simulated[counted], heights[counted]), gradient
 
 
 def neg_heightmap_loss(sim, target: HeightMapTarget) -> LossResult:
@@ -126,11 +131,13 @@ def neg_heightmap_loss(sim, target: HeightMapTarget) -> LossResult:
 @dataclass(frozen=True)
 class Targets:
     """The targets of one datapoint: the PCD target (k, 3) in m (fused after cloud voxel-downsampled
-    at 5 mm), the PRT target (k, 3) in m (particles filled in the after mesh) and the real height map."""
+    at 5 mm), the PRT target (k, 3) in m (particles filled in the after mesh), the real height map, and
+    the same map restricted to the interior of the object's outlines (``heightmap_interior``)."""
 
     pcd: np.ndarray | None = None
     prt: np.ndarray | None = None
     heightmap: HeightMapTarget | None = None
+    heightmap_interior: HeightMapTarget | None = None
 
 
 _REGISTRY: dict[str, tuple[Callable[..., LossResult], str]] = {
@@ -141,6 +148,7 @@ _REGISTRY: dict[str, tuple[Callable[..., LossResult], str]] = {
     "prt_emd": (earth_movers, "prt"),
     "heightmap": (heightmap_loss, "heightmap"),
     "neg_heightmap": (neg_heightmap_loss, "heightmap"),
+    "heightmap_interior": (heightmap_loss, "heightmap_interior"),
 }
 
 LOSSES = _REGISTRY.keys()

@@ -45,11 +45,12 @@ class Adam:
         self.iteration = 0
 
     @classmethod
-    def for_level(cls, initial: Parameters, level: int) -> "Adam":
-        """Adam over the parameters identified at ``level`` (1 or 2) with that level's step sizes."""
+    def for_level(cls, initial: Parameters, level: int, held: Sequence[str] = ()) -> "Adam":
+        """Adam over the parameters identified at ``level`` (1 or 2), less those ``held`` at their initial
+        value (known, e.g. a measured density), with that level's step sizes."""
         if level not in IDENTIFIED:
             raise ValueError(f"unknown level {level}; known levels are {sorted(IDENTIFIED)}")
-        return cls({n: getattr(initial, n) for n in IDENTIFIED[level]}, STEP_SIZE[level])
+        return cls({n: getattr(initial, n) for n in IDENTIFIED[level] if n not in held}, STEP_SIZE[level])
 
     def step(self, gradient: Mapping[str, float]) -> dict[str, float]:
         """One update from ``gradient`` (needs every optimised name; other names are ignored);

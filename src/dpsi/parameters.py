@@ -27,6 +27,19 @@ IDENTIFIED = {1: ("E", "nu", "rho", "yield_stress"), 2: NAMES}
 
 LEVEL1_FIXED = {"mu_table": 2.0, "mu_effector": 0.3}
 
+SCALE_FREE = ("E/rho", "yield_stress/E")
+"""What a motion can determine of E, ρ and σ_y. Stresses scale with E and σ_y, inertia and weight with ρ, and
+the effector follows a prescribed path, so multiplying all three by one factor leaves every particle's path
+unchanged (tested in tests/test_simulation.py): data fix E/ρ (m²/s², a squared wave speed) and σ_y/E (the
+yield strain), not the common factor. Knowing ρ (weigh the sample) fixes it."""
+
+
+def scale_free(values) -> dict[str, float]:
+    """The :data:`SCALE_FREE` combinations of a mapping (or :class:`Parameters`) holding E, rho and
+    yield_stress."""
+    v = asdict(values) if isinstance(values, Parameters) else values
+    return {"E/rho": v["E"] / v["rho"], "yield_stress/E": v["yield_stress"] / v["E"]}
+
 UNITS = {"E": "Pa", "nu": "-", "rho": "kg/m^3", "yield_stress": "Pa", "mu_table": "-", "mu_effector": "-"}
 
 
@@ -117,6 +130,6 @@ def random_initial(seed: int, level: int) -> Parameters:
 
 
 __all__ = [
-    "NAMES", "LOWER", "UPPER", "STEP_SIZE", "IDENTIFIED", "LEVEL1_FIXED", "UNITS",
+    "NAMES", "LOWER", "UPPER", "STEP_SIZE", "IDENTIFIED", "LEVEL1_FIXED", "SCALE_FREE", "scale_free", "UNITS",
     "Parameters", "lame", "HAND_PICKED", "STIFFEST", "clip", "random_initial",
 ]

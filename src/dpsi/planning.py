@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from dpsi.effectors import Effector
 from dpsi.heightmap import footprint_centre, heightmap_distance_mm

@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from dpsi.datapoints_table import COLUMNS, ROLES, TableError, read_table
+from dpsi.datapoints_table import COLUMNS, TableError, read_table
 from dpsi.effectors import BUILT_IN, Effector, by_name, effector_from_mesh
 from dpsi.motions import read_waypoints
 from dpsi.pointclouds import (CLOUD_SUFFIXES, MESH_SUFFIXES, TRANSFORM_SUFFIXES, View, atomic_output,

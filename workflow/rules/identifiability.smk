@@ -70,6 +70,7 @@ if "identifiability" in ANALYSES:
         params:
             iterations=LADDER["iterations"],
             initial=LADDER["initial"],
+            known=LADDER.get("known", {}),
             simulator=simulator_params(),
 
     rule ladder_reference:

@@ -33,6 +33,7 @@ rule identify:
     params:
         iterations=IDENT["iterations"],
         initial=IDENT.get("initial", "random"),
+        known=IDENT.get("known", {}),
         simulator=simulator_params(),
     script:
         "../scripts/identify.py"
@@ -65,6 +66,7 @@ if RUN_ANALYSES:
         params:
             iterations=lambda w: ANALYSES[w.analysis]["iterations"],
             initial=lambda w: w.start,
+            known={},
             simulator=simulator_params(),
 
 

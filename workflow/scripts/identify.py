@@ -22,4 +22,4 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
         [load_datapoint(f) for f in snakemake.input.validation], seed=int(w.seed), iterations=p.iterations,
         initial=HAND_PICKED if p.initial == "hand-picked" else None, truth=truth,
         simulator=Simulator(SimulatorConfig(**p.simulator)), progress=sys.stderr, restart_if_different=True,
-        labels=labels)
+        labels=labels, known=p.known)

@@ -21,7 +21,7 @@ from dpsi.datapoint import Datapoint
 from dpsi.heightmap import SIZE, heightmap_distance_mm
 from dpsi.losses import VALIDATION_METRICS as METRICS
 from dpsi.losses import simulated_heightmap
-from dpsi.parameters import IDENTIFIED, LOWER, UPPER
+from dpsi.parameters import IDENTIFIED, LOWER, SCALE_FREE, UPPER
 from dpsi.files import atomic_output, check_points
 
 
@@ -223,7 +223,7 @@ def plot_recovery(table: pd.DataFrame, png_path: str | Path, pdf_path: str | Pat
     width = 0.8 / len(losses)
     for ax, (level, rung) in zip(axes, panels):
         rows = table[(table["level"] == level) & (table["rung"] == rung)]
-        names = [n for n in IDENTIFIED[level] if n in set(rows["parameter"])]
+        names = [n for n in (*IDENTIFIED[level], *SCALE_FREE) if n in set(rows["parameter"])]
         for k, loss in enumerate(losses):
             mine = rows[rows["loss"] == loss]
             x = np.arange(len(names)) + (k - (len(losses) - 1) / 2) * width
@@ -231,7 +231,8 @@ def plot_recovery(table: pd.DataFrame, png_path: str | Path, pdf_path: str | Pat
             ax.bar(x, [e.median() if len(e) else np.nan for e in errors], width, label=loss, color=f"C{k}")
             for xi, e in zip(x, errors):
                 ax.plot(np.full(len(e), xi), e, "k.", markersize=3)
-        ax.set_xticks(np.arange(len(names)), [PARAMETER_AXES[n][0].split(" (")[0] for n in names])
+        ax.set_xticks(np.arange(len(names)), [PARAMETER_AXES[n][0].split(" (")[0] if n in PARAMETER_AXES else n
+                                              for n in names], fontsize=7)
         ax.set_yscale("symlog", linthresh=10)
         ax.axhline(10, color="grey", lw=0.8, ls="--")
         ax.set_title(f"level {level}, {rung}")

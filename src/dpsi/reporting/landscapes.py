@@ -15,7 +15,8 @@ from dpsi.parameters import NAMES
 from dpsi.reporting.figures import PARAMETER_AXES, new_figure, save
 
 LOSS_LABELS = {"pcd_cd": "PCD-CD", "prt_cd": "PRT-CD", "pcd_emd": "PCD-EMD", "prt_emd": "PRT-EMD",
-               "heightmap": "height map", "neg_heightmap": "negated height map"}
+               "heightmap": "height map", "neg_heightmap": "negated height map",
+               "heightmap_interior": "interior height map"}
 """Display name of each training loss."""
 
 COLOUR_MAP = "RdBu_r"

@@ -8,7 +8,7 @@ File names and CSV columns are an interface that other tools read:
   val_heightmap_mm (plus rows with dataset = "average" per loss, and loss = "hand-picked")
 - ``ood_heightmap.csv``: motion, config, loss, dataset, heightmap_mm (plus loss = "hand-picked" rows
   and "average" rows)
-- ``recovery_error.csv``: level, loss, dataset, seed, parameter, truth, estimate, rel_error
+- ``recovery_error.csv``: level, loss, dataset, seed, parameter (and E/rho, yield_stress/E), truth, estimate, rel_error
 - ``materials.csv``: material, parameter, truth, seed<s> (one per seed), estimate, rel_error,
   val_heightmap_mm
 - ``minima.csv``: dataset, start, seed, best_iteration, val_heightmap_mm, E, nu, rho, yield_stress
@@ -26,7 +26,7 @@ import pandas as pd
 
 from ..motions import MOTIONS, plan, resample
 from ..losses import VALIDATION_METRICS
-from ..parameters import HAND_PICKED, IDENTIFIED, LOWER, NAMES, STEP_SIZE, UNITS, UPPER
+from ..parameters import HAND_PICKED, IDENTIFIED, LOWER, NAMES, STEP_SIZE, UNITS, UPPER, scale_free
 from ..files import atomic_output
 
 HAND_PICKED_LABEL = "hand-picked"
@@ -93,11 +93,15 @@ def ood_table(records: list[dict]) -> pd.DataFrame:
 
 def recovery_table(summaries: list[dict]) -> pd.DataFrame:
     """For runs on the synthetic twin (summaries with a ``truth``): the relative error of every
-    parameter at the run's best iteration."""
+    parameter, and of the scale-free combinations (:data:`dpsi.parameters.SCALE_FREE`), at the run's best
+    iteration."""
+    def values(p: dict) -> dict:
+        return {**{n: p[n] for n in NAMES}, **scale_free(p)}
+
     rows = [dict(level=s["level"], loss=s["loss"], dataset=s["dataset"], seed=s["seed"], parameter=n,
-                 truth=s["truth"][n], estimate=s["best"]["parameters"][n],
-                 rel_error=abs(s["best"]["parameters"][n] - s["truth"][n]) / abs(s["truth"][n]))
-            for s in summaries if s.get("truth") and s.get("best") for n in NAMES]
+                 truth=truth, estimate=estimate, rel_error=abs(estimate - truth) / abs(truth))
+            for s in summaries if s.get("truth") and s.get("best")
+            for (n, truth), estimate in zip(values(s["truth"]).items(), values(s["best"]["parameters"]).values())]
     return pd.DataFrame(rows, columns=["level", "loss", "dataset", "seed", "parameter", "truth", "estimate",
                                        "rel_error"])
 
