@@ -10,8 +10,8 @@ import numpy as np
 
 from .effectors import Effector
 from .files import load_arrays, save_arrays
-from .heightmap import height_map, interior_cells
-from .losses import HeightMapTarget
+from .heightmap import interior_cells
+from .losses import HeightMapTarget, simulated_heightmap
 from .motions import Trajectory
 
 
@@ -51,8 +51,7 @@ class Datapoint:
         """The captured after height map counted only inside the outlines of both the target and the before
         particles (one cell in from each): the outline is where reconstruction errors dominate."""
         target = self.heightmap_target()
-        before = height_map(self.particles, self.centre_xy, cells=self.heightmap.shape[0], floor=self.table_z,
-                            particle_size=self.particle_size)
+        before = simulated_heightmap(self.particles, target)
         return target._replace(cells=interior_cells(self.heightmap, before, floor=self.table_z))
 
 _ARRAYS = ("particles", "start", "pcd_target", "prt_target", "heightmap", "centre_xy", "trajectory_positions",

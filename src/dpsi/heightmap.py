@@ -91,6 +91,13 @@ def height_map(points, centre_xy, size: float = SIZE, cells: int = CELLS, floor:
     ``particle_size`` (m) > 0 each point is a particle cube covering its footprint up to its top.
     """
     owners = height_map_owners(points, centre_xy, size, cells, particle_size)
+    return owned_heights(points, owners, floor, particle_size)
+
+
+def owned_heights(points, owners: np.ndarray, floor: float | None = None, particle_size: float = 0.0) -> np.ndarray:
+    """The height map (m) that ``owners`` (from :func:`height_map_owners` of the same ``points`` and
+    ``particle_size``) describes: each owned cell at its point's z (plus ``particle_size`` / 2, the cube's
+    top), empty cells at ``floor`` (default :data:`TABLE_HEIGHT`)."""
     heights = np.full(owners.shape, TABLE_HEIGHT if floor is None else float(floor))
     filled = owners >= 0
     heights[filled] = np.asarray(points, dtype=float)[owners[filled], 2] + particle_size / 2
@@ -117,4 +124,4 @@ def heightmap_distance_mm(a, b) -> float:
     return float(np.abs(a - b).sum() * 1000.0)
 
 
-__all__ = ["SIZE", "CELLS", "TABLE_HEIGHT", "height_map_owners", "height_map", "interior_cells", "heightmap_distance_mm"]
+__all__ = ["SIZE", "CELLS", "TABLE_HEIGHT", "height_map_owners", "height_map", "owned_heights", "interior_cells", "heightmap_distance_mm"]

@@ -189,15 +189,16 @@ def loss_minima(simulator: Simulator, dp: Datapoint, truth: Parameters,
     data, whatever the optimiser does; a span far below the signal means the data hide what the parameter
     does."""
     rows = []
+    data, drawn_as = targets(dp), dp.heightmap_target()
     for name in SCAN_PARAMETERS:
         true = getattr(truth, name)
         values = [true * f for f in SCAN_FACTORS if LOWER[name] <= true * f <= UPPER[name]]
         finals = [simulator.forward(scene(dp), truth.replace(**{name: v}), keep_substeps=False) for v in values]
-        maps = [simulated_heightmap(final, dp.heightmap_target()) for final in finals]
+        maps = [simulated_heightmap(final, drawn_as) for final in finals]
         at_truth = values.index(true)
         signal = np.mean([heightmap_distance_mm(m, maps[at_truth]) for k, m in enumerate(maps) if k != at_truth])
         for loss in losses:
-            scan = [loss_by_name(loss)(final, targets(dp))[0] for final in finals]
+            scan = [loss_by_name(loss)(final, data)[0] for final in finals]
             best = int(np.argmin(scan))
             rows.append({"parameter": name, "loss": loss, "truth": true, "argmin": values[best],
                          "loss_at_argmin_mm": scan[best], "loss_at_truth_mm": scan[at_truth],

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
 from dpsi.files import check_points
-from dpsi.heightmap import height_map, height_map_owners, heightmap_distance_mm
+from dpsi.heightmap import height_map, height_map_owners, heightmap_distance_mm, owned_heights
 
 MM_PER_M = 1000.0
 
@@ -112,7 +112,7 @@ def heightmap_loss(sim, target: HeightMapTarget) -> LossResult:
     if heights.ndim != 2 or heights.shape[0] != heights.shape[1]:
         raise ValueError(f"target height map must be square (cells, cells), got {heights.shape}")
     owners = height_map_owners(sim, target.centre_xy, cells=heights.shape[0], particle_size=target.particle_size)
-    simulated = simulated_heightmap(sim, target)
+    simulated = owned_heights(sim, owners, target.floor, target.particle_size)
     counted = np.ones(heights.shape, bool) if target.cells is None else np.asarray(target.cells, bool)
     if counted.shape != heights.shape:
         raise ValueError(f"height-map cells mask has shape {counted.shape}, the map {heights.shape}")
