@@ -9,8 +9,8 @@ import pytest
 
 from dpsi.datapoint import Datapoint
 from dpsi.effectors import by_name
-from dpsi.identifiability import (COLUMNS, LADDER_LOSSES, SCAN_PARAMETERS, ladder_table, loss_minima, recovery_summary,
-                                  reference, same_model_datapoint)
+from dpsi.identifiability import (COLUMNS, LADDER_LOSSES, SAME_AT_R0, SCAN_PARAMETERS, ladder_table, loss_minima,
+                                  recovery_summary, reference, relabelled, same_model_datapoint)
 from dpsi.identification import identify
 from dpsi.parameters import IDENTIFIED, SCALE_FREE
 from dpsi.simulation import Simulator
@@ -66,6 +66,30 @@ def test_rung_0_recovers_young_modulus_and_yield_stress_from_50_percent_off(rung
                        simulator=simulator, progress=io.StringIO())
     assert summary["relative_error"]["E"] < 0.10
     assert summary["relative_error"]["yield_stress"] < 0.10
+
+
+def test_on_rung_0_each_pcd_loss_runs_exactly_as_its_prt_loss_so_its_run_is_relabelled(rung0, tmp_path):
+    simulator, training, validation = rung0
+    start = TRUTH.replace(E=0.5 * TRUTH.E, yield_stress=1.5 * TRUTH.yield_stress)
+    labels = dict(rung="R0", level=1, dataset="1-round", seed=0)
+    summaries, logs = {}, {}
+    for pcd, prt in SAME_AT_R0.items():
+        for loss in (pcd, prt):
+            summaries[loss] = identify(tmp_path / loss, 1, loss, training, validation, iterations=2, initial=start,
+                                       truth=TRUTH, simulator=simulator, progress=io.StringIO(),
+                                       labels={**labels, "loss": loss})
+            logs[loss] = pd.read_csv(tmp_path / loss / "log.csv").drop(columns="wall_s")
+        pd.testing.assert_frame_equal(logs[pcd], logs[prt], check_exact=True)
+        assert logs[prt].train_loss_mm.iloc[0] > 1.0  # the runs start off the truth and move
+        stand_in = relabelled(summaries[prt], pcd)
+        assert stand_in["loss"] == stand_in["labels"]["loss"] == pcd and stand_in["same_run_as"] == prt
+        assert {k: v for k, v in stand_in.items() if k not in ("loss", "labels", "same_run_as")} == \
+               {k: v for k, v in summaries[pcd].items() if k not in ("loss", "labels", "wall_s")} | \
+               {"wall_s": summaries[prt]["wall_s"]}
+    with pytest.raises(ValueError, match="only an R0 run of 'prt_emd'"):
+        relabelled(summaries["prt_cd"], "pcd_emd")
+    with pytest.raises(ValueError, match="this is a R1 run"):
+        relabelled({**summaries["prt_cd"], "labels": {**labels, "rung": "R1", "loss": "prt_cd"}}, "pcd_cd")
 
 
 def fake_run(seed, estimate, loss_at_best):

@@ -36,6 +36,16 @@ def test_bad_config_fails_at_start_up(tmp_path, edit, message):
     assert "validating config" in output and message in output
 
 
+@pytest.mark.parametrize("iterations, message", [
+    ({"R0": 1}, "gives no number for rung R1"),
+    ({"R0": 1, "R3": 1}, "validating config"),
+])
+def test_ladder_iterations_per_rung_must_name_every_rung_and_only_rungs(tmp_path, iterations, message):
+    config = bad_config(tmp_path, lambda c: c["analyses"]["identifiability"].update(iterations=iterations))
+    run = snakemake(tmp_path, "-n", "tables", config=config)
+    assert run.returncode != 0 and message in run.stdout + run.stderr
+
+
 def test_dataset_the_datapoints_cannot_form_fails_at_start_up(tmp_path):
     run = snakemake(tmp_path, "-n", "tables",
                     config=bad_config(tmp_path, lambda c: c["identification"].update(datasets=["1-cylinder"])))

@@ -51,6 +51,21 @@ COLUMNS = ("rung", "level", "loss", "dataset", "seed", "parameter", "truth", "es
 (:data:`dpsi.parameters.SCALE_FREE`: E/rho, yield_stress/E) of the identified ones."""
 
 
+SAME_AT_R0 = {"pcd_cd": "prt_cd", "pcd_emd": "prt_emd"}
+"""At R0 the PCD and the PRT target are the same particles, so each key is the same loss as its value there:
+the ladder runs the value once and reports the run under both names (:func:`relabelled`)."""
+
+
+def relabelled(summary: dict, loss: str) -> dict:
+    """The summary of an R0 run of ``SAME_AT_R0[loss]`` labelled as the run of ``loss``, the same function at
+    R0 (the run would repeat it bit for bit); ``same_run_as`` names the loss that was run."""
+    labels = summary.get("labels", {})
+    if labels.get("rung") != "R0" or SAME_AT_R0.get(loss) != summary.get("loss"):
+        raise ValueError(f"only an R0 run of {SAME_AT_R0.get(loss, 'a PRT loss')!r} stands for {loss!r}; "
+                         f"this is a {labels.get('rung')} run of {summary.get('loss')!r}")
+    return {**summary, "loss": loss, "labels": {**labels, "loss": loss}, "same_run_as": summary["loss"]}
+
+
 def check_rung(rung: str) -> str:
     """``rung`` if it is one of :data:`RUNGS`, else a ValueError listing them."""
     if rung not in RUNGS:
@@ -207,5 +222,5 @@ def loss_minima(simulator: Simulator, dp: Datapoint, truth: Parameters,
 
 
 
-__all__ = ["RUNGS", "LADDER_LOSSES", "COLUMNS", "check_rung", "same_model_datapoint", "reconstructed_twin_datapoint",
+__all__ = ["RUNGS", "LADDER_LOSSES", "COLUMNS", "SAME_AT_R0", "relabelled", "check_rung", "same_model_datapoint", "reconstructed_twin_datapoint",
            "level_truth", "reference", "run_rows", "RUN_LABELS", "ladder_table", "recovery_summary", "SCAN_PARAMETERS", "SCAN_FACTORS", "bias_sources", "loss_minima"]

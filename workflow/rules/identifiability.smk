@@ -1,7 +1,9 @@
 """The identifiability ladder (dpsi.identifiability): identification runs on three rungs of the twin that
 share datapoints and differ in how the targets come about: R0 same model, R1 reconstructed at the
-identification resolution, R2 the main pipeline's finer twin. `snakemake identifiability` builds the ladder of
-the config; `tables` and `figures` include the rungs and losses listed in `in_tables` (R0 in the quick default).
+identification resolution, R2 the main pipeline's finer twin. At R0 the PCD and PRT targets are the same
+particles, so a PCD loss's run there is its PRT loss's run, relabelled (ladder_same_target). `snakemake
+identifiability` builds the ladder of the config; `tables` and `figures` include the rungs and losses listed
+in `in_tables` (R0 in the quick default).
 """
 
 
@@ -68,10 +70,33 @@ if "identifiability" in ANALYSES:
         wildcard_constraints:
             rung="R[0-2]",
         params:
-            iterations=LADDER["iterations"],
+            iterations=lambda w: ladder_iterations(w.rung),
             initial=LADDER["initial"],
             known=LADDER.get("known", {}),
             simulator=simulator_params(),
+
+    rule ladder_same_target:
+        input:
+            summary=lambda w: f"{same_target_run(w)}/summary.json",
+            log=lambda w: f"{same_target_run(w)}/log.csv",
+            code=code("ladder_same_target"),
+        output:
+            summary=f"{LADDER_SAME_TARGET}/summary.json",
+            log=f"{LADDER_SAME_TARGET}/log.csv",
+        log:
+            log_file("identifiability/R0_L{level}_pcd_{metric}_{dataset}_seed{seed}"),
+        wildcard_constraints:
+            metric="cd|emd",
+        conda:
+            "../envs/dpsi.yaml"
+        threads: 1
+        resources:
+            mem_mb=500,
+            runtime=5,
+        script:
+            "../scripts/ladder_same_target.py"
+
+    ruleorder: ladder_same_target > identify_ladder
 
     rule ladder_reference:
         input:

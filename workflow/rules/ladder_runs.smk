@@ -13,12 +13,40 @@ if "identifiability" in ANALYSES:
     LADDER_ROOT = f"{RESULTS}/identifiability"
     LADDER_RUN = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
     LADDER_REFERENCE = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{dataset}}/reference.json"
+    LADDER_SAME_TARGET = (
+        f"{LADDER_ROOT}/R0/L{{level}}/pcd_{{metric}}/{{dataset}}/seed{{seed}}"
+    )
+
+    def same_target_run(w):
+        """The R0 run of the PRT loss that a PCD loss's R0 run (wildcards `w`) is."""
+        return LADDER_RUN.format(
+            rung="R0",
+            level=w.level,
+            loss=f"prt_{w.metric}",
+            dataset=w.dataset,
+            seed=w.seed,
+        )
+
+    def ladder_iterations(rung):
+        """Iterations of the ladder's runs on `rung`: one number for all rungs, or one per rung."""
+        iterations = LADDER["iterations"]
+        if isinstance(iterations, int):
+            return iterations
+        if rung not in iterations:
+            raise WorkflowError(
+                f"analyses.identifiability.iterations gives no number for rung {rung}: "
+                f"add {rung} to it, or give one number for every rung"
+            )
+        return iterations[rung]
 
     def ladder_prepared(rung, ids):
         """Prepared datapoints of a rung: R2 is the main pipeline's."""
         if rung == "R2":
             return prepared(ids)
         return [f"{LADDER_ROOT}/{rung}/prepared/{i}.npz" for i in ids]
+
+    for rung in LADDER["rungs"]:
+        ladder_iterations(rung)  # fails at start-up if a per-rung mapping misses a rung
 
     def ladder_runs(rungs, losses):
         """Folder → labels of every ladder run on `rungs` with `losses`."""
