@@ -1,6 +1,7 @@
 """The identifiability ladder: R0 (same model) on the tiny poked block of test_identification, and the
 ladder table."""
 
+import dataclasses
 import io
 
 import numpy as np
@@ -9,11 +10,15 @@ import pytest
 
 from dpsi.datapoint import Datapoint
 from dpsi.effectors import by_name
-from dpsi.identifiability import (COLUMNS, LADDER_LOSSES, SAME_AT_R0, SCAN_PARAMETERS, ladder_table, loss_minima,
-                                  recovery_summary, reference, relabelled, same_model_datapoint)
-from dpsi.identification import identify
+from dpsi.heightmap import height_map, heightmap_distance_mm
+from dpsi.identifiability import (COLUMNS, LADDER_LOSSES, SAME_AT_R0, SCAN_PARAMETERS, bias_sources, ladder_table,
+                                  loss_minima, recovery_summary, reference, relabelled, same_model_datapoint)
+from dpsi.identification import identify, scene
+from dpsi.losses import simulated_heightmap
 from dpsi.parameters import IDENTIFIED, SCALE_FREE
+from dpsi.prepare import surface_points
 from dpsi.simulation import Simulator
+from dpsi.twin import CENTRE, GroundTruth, true_surface
 from test_identification import CONFIG, SPACING, TRUTH, block, poke
 
 
@@ -90,6 +95,26 @@ def test_on_rung_0_each_pcd_loss_runs_exactly_as_its_prt_loss_so_its_run_is_rela
         relabelled(summaries["prt_cd"], "pcd_emd")
     with pytest.raises(ValueError, match="this is a R1 run"):
         relabelled({**summaries["prt_cd"], "labels": {**labels, "rung": "R1", "loss": "prt_cd"}}, "pcd_cd")
+
+
+def test_bias_sources_draw_every_map_on_the_truth_s_grid():
+    simulator = Simulator(CONFIG)
+    dp = untargeted("round", 0.008)
+    dp = dataclasses.replace(dp, particles=dp.particles + [*CENTRE, 0.0], start=dp.start + [*CENTRE, 0.0],
+                             centre_xy=dp.centre_xy + CENTRE)
+    after = simulator.forward(scene(dp), TRUTH, keep_substeps=False)
+    true_cloud = surface_points(true_surface(after, SPACING))
+    true_map = height_map(true_cloud, dp.centre_xy, floor=0.0)
+    truth = GroundTruth("block", "clay", TRUTH, SPACING**3, 0.0, dp.particles, after, dp.centre_xy, true_map)
+    pipeline = dataclasses.replace(dp, centre_xy=dp.centre_xy + [0.002, 0.0])  # its maps' grid is off the truth's
+    sources = bias_sources(simulator, pipeline, truth, 1.0 / SPACING**3, true_cloud)
+    assert sources["target"] == 0.0  # the true surface's own cloud, drawn on the truth's grid
+    # the same simulator from the twin's own particles repeats the twin: what is left is drawing the particles
+    # as cubes instead of their wrapped surface
+    drawn = dp.heightmap_target()._replace(heights=true_map, particle_size=SPACING)
+    assert sources["twin_particles"] == pytest.approx(heightmap_distance_mm(simulated_heightmap(after, drawn), true_map))
+    # a recapture without calibration error is close to the truth, and depth noise only adds to it
+    assert 0.0 < sources["target_exact_cameras"] < sources["target_no_calibration_error"] < 100.0
 
 
 def fake_run(seed, estimate, loss_at_best):

@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from dpsi.datapoint import Datapoint
-from dpsi.heightmap import heightmap_distance_mm
+from dpsi.heightmap import height_map, heightmap_distance_mm
 from dpsi.identification import evaluate, scene, targets
 from dpsi.losses import loss_by_name, simulated_heightmap
 from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, LOWER, UPPER, Parameters, scale_free
@@ -169,29 +169,50 @@ SCAN_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0, 4.0)
 """The one-parameter scans of :func:`loss_minima`: these parameters at these multiples of the truth."""
 
 
-def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: float) -> dict[str, float]:
+def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: float, after_cloud: np.ndarray,
+                 capture_seed: int = 0) -> dict[str, float]:
     """Where the distance between simulation and truth comes from, for one twin datapoint ``dp`` prepared by
-    the main pipeline and its twin ``ground_truth`` (:class:`dpsi.twin.GroundTruth`): the height-map distance
-    (mm) to the twin's true after surface of the captured target (``target``: capture and reconstruction of
-    the after state), and of simulations at the truth on this ``simulator`` started from the twin's own
-    particles (``twin_particles``: the simulator's resolution alone), from the true before shape filled at
-    ``density`` particles/m³ (``true_shape_filled``: adds the particle density), and from the reconstructed
-    before particles (``reconstructed``: adds the before shape's reconstruction; the pipeline)."""
-    from dpsi.reconstruction.filling import fill, particles_to_mesh  # open3d and pymeshlab
+    the main pipeline, its fused after cloud ``after_cloud`` (n, 3) in m and its twin ``ground_truth``
+    (:class:`dpsi.twin.GroundTruth`): height-map distances (mm) to the twin's true after surface, every map
+    drawn on the truth's grid.
 
-    truth, true_hm = ground_truth.parameters, ground_truth.heightmap
+    The target's part: the captured, fused after cloud (``target``), and the true after surface captured
+    again by the twin's cameras (seed ``capture_seed``) and fused, without calibration error
+    (``target_no_calibration_error``) and also without depth noise (``target_exact_cameras``: what the
+    cameras' sampling and the fusion leave). The simulation's part, at the truth on this ``simulator``:
+    started from the twin's own particles (``twin_particles``: the simulator's resolution alone), from the
+    true before shape filled at ``density`` particles/m³ (``true_shape_filled``: adds the particle density),
+    and from the reconstructed before particles (``reconstructed``: adds the before shape's reconstruction;
+    the pipeline)."""
+    from dpsi.capture import Camera, capture  # open3d and pymeshlab
+    from dpsi.reconstruction.filling import fill
+    from dpsi.reconstruction.fusion import fuse
+    from dpsi.twin import TABLE_Z, WORKSPACE, true_surface
 
-    def distance(particles: np.ndarray, volume: float) -> float:
-        fine = dataclasses.replace(scene(dp), particles=particles, particle_volume=volume)
-        final = simulator.forward(fine, truth, keep_substeps=False)
-        target = dp.heightmap_target()._replace(heights=true_hm, particle_size=volume ** (1 / 3))
-        return heightmap_distance_mm(simulated_heightmap(final, target), true_hm)
+    truth, true_hm, centre = ground_truth.parameters, ground_truth.heightmap, ground_truth.centre_xy
+    spacing = ground_truth.particle_volume ** (1 / 3)
 
-    true_shape = particles_to_mesh(ground_truth.before_particles, ground_truth.particle_volume ** (1 / 3))
-    return {"target": heightmap_distance_mm(dp.heightmap, true_hm),
-            "twin_particles": distance(ground_truth.before_particles, ground_truth.particle_volume),
-            "true_shape_filled": distance(fill(true_shape, density), 1.0 / density),
-            "reconstructed": distance(dp.particles, dp.particle_volume)}
+    def cloud_distance(cloud: np.ndarray) -> float:
+        return heightmap_distance_mm(height_map(cloud, centre, floor=TABLE_Z), true_hm)
+
+    def recaptured(**errors) -> float:
+        after = true_surface(ground_truth.after_particles, spacing, name=f"{dp.id} true after")
+        return cloud_distance(fuse(capture(after, TABLE_Z, seed=capture_seed, **errors), *WORKSPACE, table_z=TABLE_Z))
+
+    def simulated(particles: np.ndarray, volume: float) -> float:
+        final = simulator.forward(dataclasses.replace(scene(dp), particles=particles, particle_volume=volume),
+                                  truth, keep_substeps=False)
+        drawn = dp.heightmap_target()._replace(heights=true_hm, centre_xy=centre, particle_size=volume ** (1 / 3))
+        return heightmap_distance_mm(simulated_heightmap(final, drawn), true_hm)
+
+    exact = {"translation_error": 0.0, "rotation_error": 0.0}
+    true_shape = true_surface(ground_truth.before_particles, spacing, name=f"{dp.id} true before")
+    return {"target": cloud_distance(after_cloud),
+            "target_no_calibration_error": recaptured(**exact),
+            "target_exact_cameras": recaptured(**exact, camera=Camera(depth_noise=0.0)),
+            "twin_particles": simulated(ground_truth.before_particles, ground_truth.particle_volume),
+            "true_shape_filled": simulated(fill(true_shape, density), 1.0 / density),
+            "reconstructed": simulated(dp.particles, dp.particle_volume)}
 
 
 def loss_minima(simulator: Simulator, dp: Datapoint, truth: Parameters,

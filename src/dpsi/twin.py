@@ -156,11 +156,14 @@ def _row(root: Path, datapoint_id: str) -> pd.Series:
     return match.iloc[0]
 
 
-def _table_clamped(mesh: o3d.geometry.TriangleMesh, table_z: float) -> o3d.geometry.TriangleMesh:
-    """``mesh`` with vertices below the table raised onto it (the wrap's offset reaches under the
-    lowest particles, which rest on the table or, after a motion, sink into it a little)."""
+def true_surface(particles: np.ndarray, spacing: float, name: str = "particles") -> o3d.geometry.TriangleMesh:
+    """The surface (m) the twin's cameras see of its particles (n, 3) on a lattice of ``spacing`` m: their
+    alpha wrap (:func:`~dpsi.reconstruction.filling.particles_to_mesh`) with vertices below the table raised
+    onto it (the wrap's offset reaches under the lowest particles, which rest on the table or, after a
+    motion, sink into it a little)."""
+    mesh = particles_to_mesh(particles, spacing, name=name)
     v = np.asarray(mesh.vertices).copy()
-    v[:, 2] = np.maximum(v[:, 2], table_z)
+    v[:, 2] = np.maximum(v[:, 2], TABLE_Z)
     mesh.vertices = o3d.utility.Vector3dVector(v)
     return mesh
 
@@ -178,12 +181,12 @@ def generate_datapoint(root: str | os.PathLike, datapoint_id: str) -> Path:
     offset = np.random.default_rng(jitter_seed).uniform(-CENTRE_JITTER, CENTRE_JITTER, 2)
     particles = fill(random_lump(int(shape_seed), np.asarray(CENTRE) + offset, TABLE_Z), density)
     spacing = lattice_spacing(density)
-    before = _table_clamped(particles_to_mesh(particles, spacing, name=f"{datapoint_id} before"), TABLE_Z)
+    before = true_surface(particles, spacing, name=f"{datapoint_id} before")
     lo, hi = before.get_min_bound(), before.get_max_bound()
     waypoints = plan(get_motion(row.motion), int(plan_seed), start_xyz=[*(lo[:2] + hi[:2]) / 2, hi[2]])
     scene = Scene(particles, 1.0 / density, by_name(row.effector), resample(waypoints), waypoints.xyz[0], TABLE_Z)
     final = simulator(config).forward(scene, materials[row.material], keep_substeps=False)
-    after = _table_clamped(particles_to_mesh(final, spacing, name=f"{datapoint_id} after"), TABLE_Z)
+    after = true_surface(final, spacing, name=f"{datapoint_id} after")
     centre_xy = scene.centre_xy
     truth = GroundTruth(datapoint_id, row.material, materials[row.material], 1.0 / density, TABLE_Z,
                         particles, final, centre_xy,
@@ -220,5 +223,5 @@ def generate_twin(root: str | os.PathLike, plan: Plan | None = None, seed: int =
 
 
 __all__ = ["CENTRE", "CENTRE_JITTER", "TABLE_Z", "WORKSPACE", "FINE_CONFIG", "FINE_DENSITY",
-           "GROUND_TRUTH_FILE", "write_twin_table", "read_truth", "simulator", "GroundTruth", "write_ground_truth",
+           "GROUND_TRUTH_FILE", "write_twin_table", "read_truth", "simulator", "true_surface", "GroundTruth", "write_ground_truth",
            "load_ground_truth", "generate_datapoint", "generate_twin"]

@@ -158,6 +158,7 @@ if "identifiability" in ANALYSES:
             datapoints=prepared(bias_datapoints()),
             reconstructed=ladder_prepared("R1", bias_datapoints()),
             twin=[f"{RAW}/{i}" for i in bias_datapoints()],
+            after_clouds=[f"{RESULTS}/fused/{i}_after.npy" for i in bias_datapoints()],
             truth=truth_file(),
             code=code("identifiability_bias"),
         output:
