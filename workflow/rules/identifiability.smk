@@ -93,6 +93,8 @@ if "identifiability" in ANALYSES:
         resources:
             mem_mb=500,
             runtime=5,
+        params:
+            loss=lambda w: f"pcd_{w.metric}",
         script:
             "../scripts/ladder_same_target.py"
 

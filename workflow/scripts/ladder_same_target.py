@@ -11,7 +11,7 @@ from dpsi.provenance import recorded
 
 out = snakemake.output
 with recorded(out, snakemake.input, dict(snakemake.params), snakemake.log[0]):
-    summary = relabelled(json.loads(Path(snakemake.input.summary).read_text()), snakemake.wildcards.loss)
+    summary = relabelled(json.loads(Path(snakemake.input.summary).read_text()), snakemake.params.loss)
     with atomic_output(out.summary) as tmp:
         tmp.write_text(json.dumps(summary, indent=2) + "\n")
     with atomic_output(out.log) as tmp:
