@@ -177,7 +177,7 @@ def test_tiny_ladder_reports_the_rung_0_prt_run_for_the_pcd_loss_too(tiny_run):
     by_loss = {loss: rows.drop(columns="loss").reset_index(drop=True) for loss, rows in table.groupby("loss")}
     assert set(by_loss) == {"pcd_cd", "prt_cd"} and len(by_loss["prt_cd"]) == len(IDENTIFIED[1]) + 2
     pd.testing.assert_frame_equal(by_loss["pcd_cd"], by_loss["prt_cd"])
-    assert (table.estimate != table.truth).any()  # one iteration from the hand-picked values moved nothing to the truth
+    assert (table.estimate != table.truth).any()  # estimates of a run, not the truth copied
     summary = json.loads((tiny_run / "results" / "twin-tiny" / "identifiability" / "R0" / "L1" / "pcd_cd" / "1-round"
                           / "seed0" / "summary.json").read_text())
     assert summary["same_run_as"] == "prt_cd" and summary["labels"]["loss"] == "pcd_cd"

@@ -191,13 +191,14 @@ def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: flo
 
     truth, true_hm, centre = ground_truth.parameters, ground_truth.heightmap, ground_truth.centre_xy
     spacing = ground_truth.particle_volume ** (1 / 3)
+    true_after = true_surface(ground_truth.after_particles, spacing, name=f"{dp.id} true after")
 
     def cloud_distance(cloud: np.ndarray) -> float:
         return heightmap_distance_mm(height_map(cloud, centre, floor=TABLE_Z), true_hm)
 
     def recaptured(**errors) -> float:
-        after = true_surface(ground_truth.after_particles, spacing, name=f"{dp.id} true after")
-        return cloud_distance(fuse(capture(after, TABLE_Z, seed=capture_seed, **errors), *WORKSPACE, table_z=TABLE_Z))
+        views = capture(true_after, TABLE_Z, seed=capture_seed, **errors)
+        return cloud_distance(fuse(views, *WORKSPACE, table_z=TABLE_Z))
 
     def simulated(particles: np.ndarray, volume: float) -> float:
         final = simulator.forward(dataclasses.replace(scene(dp), particles=particles, particle_volume=volume),
