@@ -13,6 +13,7 @@ from dpsi.motions import Trajectory, trajectory
 from dpsi.parameters import HAND_PICKED, NAMES, STIFFEST, Parameters
 from dpsi.simulation import Scene, SimulationError, Simulator, SimulatorConfig
 from dpsi.simulation.constitutive import surely_elastic
+from dpsi.simulation.mpm import mapped_array
 
 SPACING = 0.004  # m between particles: a coarse object keeps these tests fast
 CONFIG = SimulatorConfig(width=0.12, height=0.08, max_particles=1500, max_steps=120)
@@ -367,3 +368,13 @@ def test_mesh_effector_matches_the_parametric_rectangle(sim, tmp_path):
     near = np.abs(parametric) < 0.02
     assert np.abs(parametric[near] - sampled[near]).max() < 2 * grid.sdf_spacing  # trilinear error at edges
     assert (np.sign(parametric[np.abs(parametric) > 2e-3]) == np.sign(sampled[np.abs(parametric) > 2e-3])).all()
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_mapped_array_is_a_zeroed_writable_array_of_its_own(dtype):
+    a, b = mapped_array(1000, dtype), mapped_array(1000, dtype)
+    assert a.shape == (1000,) and a.dtype == dtype and a.flags.writeable and a.flags.c_contiguous
+    assert not a.any()
+    a[:] = 1.5
+    assert (a == 1.5).all() and not b.any()  # each call maps its own memory
+    assert mapped_array(0, dtype).shape == (0,)
