@@ -117,9 +117,10 @@ def test_bias_sources_draw_every_map_on_the_truth_s_grid():
     assert 0.0 < sources["target_exact_cameras"] < sources["target_no_calibration_error"] < 100.0
 
 
-def fake_run(seed, estimate, loss_at_best):
+def fake_run(seed, estimate, loss_at_best, known=()):
     labels = dict(rung="R0", level=1, loss="prt_emd", dataset="1-round", seed=seed)
-    summary = {**labels, "best": {"iteration": 2, "parameters": estimate, "validation": {"heightmap_mm": 100.0}}}
+    summary = {**labels, "known": sorted(known),
+               "best": {"iteration": 2, "parameters": estimate, "validation": {"heightmap_mm": 100.0}}}
     log = pd.DataFrame({"iteration": [0, 1, 2], "train_loss_mm": [900.0, 500.0, loss_at_best]}).assign(**labels)
     return summary, log
 
@@ -141,3 +142,13 @@ def test_ladder_table_has_a_row_per_identified_parameter_with_relative_errors():
     assert ratios["E/rho"] == pytest.approx(0.1) and ratios["yield_stress/E"] == pytest.approx(1 - 1 / 1.1)
     assert (table.loc[~table.parameter.isin(["E", *SCALE_FREE]), "rel_error"] == 0).all()
     assert recovery_summary(table).loc[("R0", 1, "prt_emd"), "E"] == pytest.approx(0.15)
+
+
+def test_a_parameter_held_known_gets_no_row_but_its_value_enters_the_ratios():
+    truth = TRUTH.as_dict()
+    ref = {"truth": truth, "loss_at_truth_mm": {"prt_emd": 0.0}, "val_heightmap_hand_picked_mm": 300.0,
+           "val_heightmap_no_motion_mm": 900.0}
+    summary, log = fake_run(0, {**truth, "E": truth["E"] * 1.2}, 40.0, known=["rho"])
+    table = ladder_table([summary], log, {("R0", 1, "1-round"): ref}).set_index("parameter")
+    assert "rho" not in table.index and len(table) == len(IDENTIFIED[1]) - 1 + len(SCALE_FREE)
+    assert table.rel_error["E/rho"] == pytest.approx(0.2)

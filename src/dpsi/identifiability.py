@@ -125,7 +125,8 @@ def reference(simulator: Simulator, training: Sequence[Datapoint], validation: S
 def run_rows(summary: dict, log: pd.DataFrame, ref: dict) -> list[dict]:
     """Ladder-table rows of one run: its ``summary`` (:func:`dpsi.identification.summarise` with the labels
     rung, level, loss, dataset and seed), its ``log`` rows (for the training loss at the best row) and the
-    ``ref`` of its (rung, level, dataset) from :func:`reference`."""
+    ``ref`` of its (rung, level, dataset) from :func:`reference`. Parameters the run held ``known`` get no
+    row; the scale-free combinations still use their values."""
     level, loss, best = int(summary["level"]), summary["loss"], summary["best"]
     at_best = log.loc[log["iteration"] == best["iteration"], "train_loss_mm"] if best else []
     common = {"rung": check_rung(summary["rung"]), "level": level, "loss": loss, "dataset": summary["dataset"],
@@ -138,8 +139,9 @@ def run_rows(summary: dict, log: pd.DataFrame, ref: dict) -> list[dict]:
     estimate = {name: best["parameters"][name] if best else math.nan for name in IDENTIFIED[level]}
     truth.update(scale_free(truth))
     estimate.update(scale_free(estimate))
+    held = set(summary.get("known", ()))  # held at given values, not recovered: no row of their own
     return [{**common, "parameter": name, "truth": truth[name], "estimate": estimate[name],
-             "rel_error": abs(estimate[name] - truth[name]) / abs(truth[name])} for name in truth]
+             "rel_error": abs(estimate[name] - truth[name]) / abs(truth[name])} for name in truth if name not in held]
 
 
 RUN_LABELS = ("rung", "level", "loss", "dataset", "seed")
