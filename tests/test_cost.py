@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from dpsi.bench import cached_kernels, target_lines
+from dpsi.bench import cached_kernels, scaling_lines, target_lines
 from dpsi.reporting.cost import COLUMNS, cost_table, iterations_total
 
 from conftest import TINY
@@ -91,3 +91,16 @@ def test_bench_prints_each_figure_beside_its_target():
     gpu = {line.split("  target")[0].rsplit(None, 1)[0].strip(): line for line in target_lines([record()], "cuda")}
     assert gpu["poking-1: forward + backward (s)"].endswith("target ≤ 1  NOT met")
     assert gpu["poking-1: backward / forward"].endswith("target ≤ 2  met")
+
+
+def test_scaling_reports_the_best_speedup_against_the_16_core_target():
+    """Speed-ups of 5 and 3 over one thread: met on 16 CPUs; 3 alone is not; on 2 CPUs it cannot be judged."""
+    def records(cpus, *speedups):
+        runs = [{"label": "one thread", "threads": 1, "speedup": 1.0}]
+        runs += [{"label": f"run {k}", "threads": cpus, "speedup": s} for k, s in enumerate(speedups)]
+        return [{**r, "particles": 16887, "forward_s": 1.0, "backward_s": 2.0} for r in runs]
+
+    assert scaling_lines(records(16, 5.0, 3.0))[-1].endswith("best speed-up 5.00 on 16 CPUs: target ≥ 4 on 16 cores met")
+    assert scaling_lines(records(16, 3.0))[-1].endswith("on 16 cores NOT met")
+    assert scaling_lines(records(2, 1.4))[-1].endswith("on 16 cores not measurable here")
+    assert len(scaling_lines(records(2, 1.4))) == 3

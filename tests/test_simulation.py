@@ -1,5 +1,8 @@
 """The differentiable MPM simulator checked against physics and against finite differences."""
 
+import os
+import subprocess
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -153,9 +156,6 @@ def test_a_second_precision_in_one_process_is_refused(sim):
 
 
 def test_cuda_without_a_gpu_is_refused_rather_than_run_on_the_cpu():
-    import subprocess
-    import sys
-
     out = subprocess.run([sys.executable, "-c", "from dpsi.simulation.runtime import ensure_taichi; ensure_taichi('cuda')"],
                          capture_output=True, text=True)
     if out.returncode == 0:
@@ -163,10 +163,28 @@ def test_cuda_without_a_gpu_is_refused_rather_than_run_on_the_cpu():
     assert "no usable 'cuda' device" in out.stderr
 
 
-def test_serial_loops_are_chosen_from_the_particle_count_unless_forced():
-    assert SimulatorConfig().serial_for(2000) and not SimulatorConfig().serial_for(20000)
-    assert not SimulatorConfig(arch="cuda").serial_for(2000)
-    assert SimulatorConfig(serial=True).serial_for(20000) and not SimulatorConfig(serial=False).serial_for(2000)
+def test_scattering_loops_run_on_one_cpu_thread_and_in_parallel_on_a_gpu_unless_forced():
+    assert SimulatorConfig().serial_loops and not SimulatorConfig(arch="cuda").serial_loops
+    assert SimulatorConfig(arch="cuda", serial=True).serial_loops and not SimulatorConfig(serial=False).serial_loops
+
+
+def test_taichi_runs_on_the_threads_asked_for_and_by_default_on_every_cpu_the_process_may_use():
+    """A batch system gives a job some CPUs by the process's affinity: by default Taichi uses those."""
+    script = ("import os; from taichi.lang import impl; from dpsi.simulation import Simulator, SimulatorConfig; "
+              "cpus = sorted(os.sched_getaffinity(0))[:{cpus}]; os.sched_setaffinity(0, cpus); "
+              "Simulator(SimulatorConfig(max_particles=100, threads={threads})); "
+              "print(impl.current_cfg().cpu_max_num_threads)")
+    every = len(os.sched_getaffinity(0))
+    for threads, cpus, expected in [(1, every, 1), (None, 1, 1), (None, every, every)]:
+        out = subprocess.run([sys.executable, "-c", script.format(cpus=cpus, threads=threads)], capture_output=True,
+                             text=True)
+        assert out.returncode == 0, out.stderr
+        assert int(out.stdout.split()[-1]) == expected
+
+
+def test_the_thread_count_must_be_positive():
+    with pytest.raises(ValueError, match="threads must be at least 1"):
+        SimulatorConfig(threads=0)
 
 
 def test_backward_recomputing_each_step_matches_backward_from_kept_substeps(sim, monkeypatch):

@@ -1,6 +1,7 @@
 """Benchmarks that print figures (not timed tests), and the measurement behind the cost table.
 
     python -m dpsi.bench simulator [--json] [--density 4e7] [--motions poking-1 ...] [--arch cuda] [--precision f32]
+    python -m dpsi.bench scaling [--json] [--density 3.3e8] [--motion poking-1]
     python -m dpsi.bench losses [--json] [--points 3000]
 
 The simulator benchmark runs each motion in a fresh process, so that peak memory is that motion's
@@ -10,6 +11,11 @@ first forward pass (which compiles, unless Taichi's offline cache already holds 
 backward pass, then forward + backward iterations, and says whether Taichi's offline cache was warm.
 Below its table it prints each figure beside its target (:data:`TARGETS`, for the CPU of the development
 machine or for an H100 GPU with ``--arch cuda``).
+
+The scaling benchmark times one forward + backward of a larger lump (~17 000 particles at 3.3e8/m³) on the
+CPU, each in a fresh process: on one thread, on every CPU the process may use with the default loops
+(scatters on one thread), and on every CPU with every loop parallel (``serial: false``, atomic scatters),
+and prints each speed-up over one thread beside the target for a 16-core machine.
 """
 
 from __future__ import annotations
@@ -38,6 +44,13 @@ TARGETS = {
 also at ≥ 60 000 particles ("large") and the backward pass at most this many times the forward; the extra
 time of a new process's first forward + backward with a cold or warm kernel cache; the peak memory of
 flattening on the CPU."""
+
+SCALING_TARGET = 4.0
+"""Speed-up over one thread that every core of a 16-core machine should give at ~16 000 particles."""
+
+SCALING_SETTINGS = {"one thread": {"threads": 1}, "every thread": {},
+                    "every thread, every loop parallel": {"serial": False}}
+"""The runs of the scaling benchmark: SimulatorConfig settings by label."""
 
 LARGE_SCENE = 60000
 """Particles from which the GPU's large-scene target applies (the issue's 65k)."""
@@ -147,6 +160,31 @@ def run_isolated(motion: str, density: float, iterations: int = 1, simulator: di
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def measure_scaling(motion: str, density: float) -> list[dict]:
+    """One forward + backward of ``motion`` on the benchmark lump at ``density`` for each of
+    :data:`SCALING_SETTINGS` (fresh processes), each record with its ``label``, the CPUs used
+    (``threads``) and its ``speedup`` over the first (one thread)."""
+    import os
+
+    capacity = {"max_particles": len(bench_lump_particles(density))}
+    cpus = len(os.sched_getaffinity(0))
+    records = [{**run_isolated(motion, density, simulator={**capacity, **settings}), "label": label,
+                "threads": settings.get("threads", cpus)} for label, settings in SCALING_SETTINGS.items()]
+    one = records[0]["forward_s"] + records[0]["backward_s"]
+    return [{**r, "speedup": one / (r["forward_s"] + r["backward_s"])} for r in records]
+
+
+def scaling_lines(records: list[dict]) -> list[str]:
+    """The scaling records as lines of text, the best speed-up beside :data:`SCALING_TARGET`."""
+    lines = [f"{r['label']:<36} {r['threads']:>3} threads  forward {r['forward_s']:7.2f} s  backward "
+             f"{r['backward_s']:7.2f} s  speed-up {r['speedup']:5.2f}" for r in records]
+    best, cpus = max(r["speedup"] for r in records[1:]), records[1]["threads"]
+    verdict = "met" if best >= SCALING_TARGET else "NOT met"
+    lines.append(f"{records[0]['particles']} particles, best speed-up {best:.2f} on {cpus} CPUs: target ≥ "
+                 f"{SCALING_TARGET:g} on 16 cores {verdict if cpus >= 16 else 'not measurable here'}")
+    return lines
+
+
 def target_lines(records: list[dict], arch: str) -> list[str]:
     """Each measured figure of ``records`` beside its target for ``arch``: one line each, ending in
     "met" or "NOT met"."""
@@ -191,6 +229,10 @@ def main(argv=None) -> None:
     sim.add_argument("--json", action="store_true", help="print one JSON list of records")
     sim.add_argument("--arch", choices=sorted(TARGETS), default="cpu", help="where Taichi runs (default cpu)")
     sim.add_argument("--precision", choices=["f64", "f32"], default="f64", help="floating point (default f64)")
+    scaling = sub.add_parser("scaling", help="speed-up of every CPU thread over one on a larger scene")
+    scaling.add_argument("--density", type=float, default=3.3e8, help="particles per m³ (default 3.3e8)")
+    scaling.add_argument("--motion", default="poking-1", choices=list(BENCH_MOTIONS))
+    scaling.add_argument("--json", action="store_true", help="print one JSON list of records")
     losses = sub.add_parser("losses", help="time of the EMD and Chamfer losses with gradient")
     losses.add_argument("--points", type=int, default=3000)
     losses.add_argument("--json", action="store_true")
@@ -220,6 +262,9 @@ def main(argv=None) -> None:
             print_table(records, (*SIMULATOR_KEYS, "first_forward_s", "first_backward_s", "taichi_cache"))
             print(f"\ntargets ({args.arch}, {args.precision}):")
             print("\n".join(target_lines(records, args.arch)))
+    elif args.what == "scaling":
+        records = measure_scaling(args.motion, args.density)
+        print(json.dumps(records) if args.json else "\n".join(scaling_lines(records)))
     else:
         from .losses import bench_emd
 

@@ -14,7 +14,7 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
     dp = load_datapoint(snakemake.input.datapoint[0])
     actions = ActionSet(tuple(settings["motions"]), by_name(settings["effector"]), settings["grid"],
                         settings["spacing"])
-    planner = Planner(Simulator(SimulatorConfig(**snakemake.params.simulator)), params, actions,
+    planner = Planner(Simulator(SimulatorConfig(**snakemake.params.simulator, threads=snakemake.threads)), params, actions,
                       dp.particle_volume, dp.table_z)
     plan = planner.plan(dp.particles, dp.heightmap_target(), settings["actions"])
     log.info("height-map distance %.1f mm → %.1f mm", plan.initial_distance_mm, plan.final_distance_mm)

@@ -17,11 +17,6 @@ from ..parameters import STIFFEST, Parameters
 
 PRECISIONS = ("f64", "f32")
 
-SERIAL_BELOW_PARTICLES = 8000
-"""With ``SimulatorConfig.serial`` None, CPU loops run on one thread below this many particles: there a
-loop's work is too short to pay for starting threads (~80 µs a loop on the development machine)."""
-
-
 class SimulationError(RuntimeError):
     """A simulation could not run or went unstable; the message says where and with what parameters."""
 
@@ -50,26 +45,33 @@ class SimulatorConfig:
     arch: str = "cpu"
     substep_memory_mb: float = 1200.0
     serial: bool | None = None
-    """Run particle and grid loops on one thread (True), on all (False), or choose from the scene's
-    particle count (None): see :meth:`serial_for`."""
+    """Run the particle and grid loops that scatter to the grid, and the light ones, on one thread (True)
+    or on all, with atomic adds (False); None chooses by ``arch``: see :attr:`serial_loops`."""
     precision: str = "f64"
     """Floating-point precision of the simulation, "f64" or "f32" (Taichi's default_fp: one per process)."""
+    threads: int | None = None
+    """CPU threads Taichi may run loops on (None: every CPU this process may run on). Like ``arch`` and
+    ``precision`` it is fixed by the first simulator of a process."""
 
     def __post_init__(self):
         if self.precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.dx <= 0 or self.width <= 4 * self.dx or self.height <= 4 * self.dx:
             raise ValueError(f"simulator box {self.width}×{self.height} m is too small for cell {self.dx} m")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"threads must be at least 1 (or None for every CPU), got {self.threads}")
         if not 0 < self.cfl <= 1:
             raise ValueError(f"cfl must lie in (0, 1], got {self.cfl}")
 
-    def serial_for(self, particles: int) -> bool:
-        """Whether loops run on one thread for a scene of ``particles``: as ``serial`` says, or when it is
-        None, on the CPU below :data:`SERIAL_BELOW_PARTICLES` (never on a GPU, where one thread would do
-        all the work)."""
-        if self.serial is not None:
-            return self.serial
-        return self.arch == "cpu" and particles < SERIAL_BELOW_PARTICLES
+    @property
+    def serial_loops(self) -> bool:
+        """Whether the scattering and light loops run on one thread: as ``serial`` says, or when it is
+        None, on the CPU and not on a GPU (where one thread would do all the work). On the CPU the atomic
+        adds of a scatter on several threads cost more than the threads gain, at every scene size measured
+        (docs/benchmarks.md: at 2000 and at 17 000 particles two threads took twice the time of one). The
+        heavy loops without atomics (SVD and return mapping, the constitutive adjoint) use every thread
+        either way."""
+        return self.serial if self.serial is not None else self.arch == "cpu"
 
     @property
     def grid_shape(self) -> tuple[int, int, int]:

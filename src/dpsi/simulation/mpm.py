@@ -92,7 +92,7 @@ class Simulator:
 
     def __init__(self, config: "SimulatorConfig | None" = None):
         self.config = config or SimulatorConfig()
-        ensure_taichi(self.config.arch, self.config.precision)
+        ensure_taichi(self.config.arch, self.config.precision, self.config.threads)
         c = self.config
         self.float = NUMPY_FLOAT[c.precision]
         self.dx = c.dx
@@ -168,7 +168,7 @@ class Simulator:
         self._substates = None
         self._substep_buffer = np.empty(0, dtype=self.float)
         self.substeps = 0
-        self.serial = True
+        self.serial = c.serial_loops
 
     # ------------------------------------------------------------------ effector pose
     @ti.func
@@ -716,7 +716,6 @@ class Simulator:
             raise SimulationError(f"the effector trajectory leaves the simulated box at step {k} "
                                   f"(tip at {tips[k].round(4)} m, box [{lower.round(4)}, {upper.round(4)}] m)")
         self.n_particles[None] = n
-        self.serial = self.config.serial_for(n)
         self.origin[None] = origin
         self._origin = origin
         self.table_z[None] = scene.table_z

@@ -12,10 +12,12 @@ _initialised: tuple[str, str] | None = None
 
 def ensure_taichi(arch: str = "cpu", precision: str = "f64", threads: int | None = None) -> None:
     """Initialise Taichi for ``arch`` ("cpu" or "cuda") with floating-point ``precision`` ("f64" or
-    "f32") and the offline kernel cache.
+    "f32"), the offline kernel cache and, on the CPU, ``threads`` threads (None: every CPU this process
+    may run on, which under a batch system is what the job was given).
 
-    Later calls with the same arch and precision do nothing; asking for another in the same process is an
-    error, because re-initialising Taichi would throw away every compiled kernel and field.
+    Later calls with the same arch and precision do nothing (the thread count of the first call stays);
+    asking for another arch or precision in the same process is an error, because re-initialising Taichi
+    would throw away every compiled kernel and field.
     """
     global _initialised
     if _initialised is not None:
@@ -32,7 +34,7 @@ def ensure_taichi(arch: str = "cpu", precision: str = "f64", threads: int | None
     options = dict(arch=archs[arch], default_fp=floats[precision], offline_cache=os.environ.get("DPSI_NO_CACHE") is None,
                    log_level=ti.WARN, random_seed=0)
     if arch == "cpu":
-        options["cpu_max_num_threads"] = threads or os.cpu_count() or 1
+        options["cpu_max_num_threads"] = threads or len(os.sched_getaffinity(0))
     cache = os.environ.get("DPSI_TAICHI_CACHE")
     if cache:
         options["offline_cache_file_path"] = cache
