@@ -203,6 +203,23 @@ def test_backward_recomputing_each_step_matches_backward_from_kept_substeps(sim,
         assert recomputed[name] == pytest.approx(kept[name], rel=1e-9, abs=1e-12), name
 
 
+def test_every_loop_in_parallel_with_atomic_scatters_matches_the_serial_scatters(sim, monkeypatch):
+    """``serial: false`` (how a GPU runs: every loop parallel, the scatters adding atomically) gives the
+    positions and gradients of the default CPU loops to rounding: the one check of that path on a
+    machine without a GPU."""
+    particles = block(jitter=5e-4)
+    weights = np.random.default_rng(3).normal(size=particles.shape)
+    s = scene(particles, path(4, dx=0.0005, dz=-0.0003), effectors.ROUND, depth=0.002)
+    assert sim.serial
+    final, grads = sim.forward(s, HAND_PICKED), sim.backward(weights)
+    monkeypatch.setattr(sim, "serial", False)
+    parallel_final, parallel_grads = sim.forward(s, HAND_PICKED), sim.backward(weights)
+    assert np.abs(parallel_final - final).max() < 1e-12
+    assert np.abs(parallel_final - particles).max() > 1e-4  # the effector did move particles
+    for name in NAMES:
+        assert parallel_grads[name] == pytest.approx(grads[name], rel=1e-8, abs=1e-12), name
+
+
 # ---------------------------------------------------------------- physics
 def test_block_at_rest_stays_put_and_keeps_its_mass(sim):
     particles = block()
