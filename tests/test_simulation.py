@@ -203,17 +203,22 @@ def test_backward_recomputing_each_step_matches_backward_from_kept_substeps(sim,
         assert recomputed[name] == pytest.approx(kept[name], rel=1e-9, abs=1e-12), name
 
 
-def test_every_loop_in_parallel_with_atomic_scatters_matches_the_serial_scatters(sim, monkeypatch):
-    """``serial: false`` (how a GPU runs: every loop parallel, the scatters adding atomically) gives the
-    positions and gradients of the default CPU loops to rounding: the one check of that path on a
-    machine without a GPU."""
+@pytest.mark.parametrize("transfers", ["gather", "atomic scatter"])
+def test_every_loop_in_parallel_matches_the_serial_scatters(sim, monkeypatch, transfers):
+    """``serial: false`` gives the positions and gradients of the default CPU loops to rounding, both as
+    the CPU runs it (the transfers gather at the nodes) and as a GPU does (the particles scatter with
+    atomic adds: the one check of that path on a machine without a GPU)."""
     particles = block(jitter=5e-4)
     weights = np.random.default_rng(3).normal(size=particles.shape)
     s = scene(particles, path(4, dx=0.0005, dz=-0.0003), effectors.ROUND, depth=0.002)
     assert sim.serial
     final, grads = sim.forward(s, HAND_PICKED), sim.backward(weights)
-    monkeypatch.setattr(sim, "serial", False)
-    parallel_final, parallel_grads = sim.forward(s, HAND_PICKED), sim.backward(weights)
+    parallel = sim
+    if transfers == "atomic scatter":
+        parallel = Simulator(CONFIG)
+        monkeypatch.setattr(parallel, "gathers", lambda serial: False)
+    monkeypatch.setattr(parallel, "serial", False)
+    parallel_final, parallel_grads = parallel.forward(s, HAND_PICKED), parallel.backward(weights)
     assert np.abs(parallel_final - final).max() < 1e-12
     assert np.abs(parallel_final - particles).max() > 1e-4  # the effector did move particles
     for name in NAMES:

@@ -46,7 +46,8 @@ class SimulatorConfig:
     substep_memory_mb: float = 1200.0
     serial: bool | None = None
     """Run the particle and grid loops that scatter to the grid, and the light ones, on one thread (True)
-    or on all, with atomic adds (False); None chooses by ``arch``: see :attr:`serial_loops`."""
+    or on all (False: on the CPU the transfers then gather at the nodes, on a GPU they add atomically);
+    None chooses by ``arch``: see :attr:`serial_loops`."""
     precision: str = "f64"
     """Floating-point precision of the simulation, "f64" or "f32" (Taichi's default_fp: one per process)."""
     threads: int | None = None
@@ -66,11 +67,11 @@ class SimulatorConfig:
     @property
     def serial_loops(self) -> bool:
         """Whether the scattering and light loops run on one thread: as ``serial`` says, or when it is
-        None, on the CPU and not on a GPU (where one thread would do all the work). On the CPU the atomic
-        adds of a scatter on several threads cost more than the threads gain, at every scene size measured
-        (docs/benchmarks.md: at 2000 and at 17 000 particles two threads took twice the time of one). The
-        heavy loops without atomics (SVD and return mapping, the constitutive adjoint) use every thread
-        either way."""
+        None, on the CPU and not on a GPU (where one thread would do all the work). On several CPU threads
+        the transfers gather at the nodes instead of scattering (atomic adds there cost more than the
+        threads gain); on two threads that was as fast as one thread's scatters at 17 000 particles and
+        slower at 2000 (docs/benchmarks.md), so the CPU's default stays one thread. The heavy loops without
+        atomics (SVD and return mapping, the constitutive adjoint) use every thread either way."""
         return self.serial if self.serial is not None else self.arch == "cpu"
 
     @property

@@ -15,6 +15,16 @@ One substep (state slot s → s + 1) is two kernels, :meth:`Simulator.tabulate_c
 5. particles: velocities and affine matrices back from the grid, contact with table and effector
    again, advection.
 
+Loop 3 scatters: each particle adds to its 27 stencil nodes, and so does the reverse of loop 5. On one
+CPU thread Taichi makes those adds plain ones, and that is the CPU's default (the heavy loops without
+atomics still use every thread). On several CPU threads the adds must be atomic, which costs more than
+the threads gain (17 000 particles, two threads: 2.5 × the time of one). So with ``serial`` False on the
+CPU the transfers gather instead: each substep the particles are sorted into bins by their stencil's base
+node (a counting sort in one serial loop) and store, in bin order, their weights and what they transfer;
+each node then sums over the 27 bins whose stencils reach it. Those are the same sums without atomics,
+and loops 3 and 4 become one loop over the nodes. On a GPU, where atomic adds are fast and one thread is
+slow, the particles scatter atomically.
+
 The reverse mode is written by hand (Taichi's automatic one compiles slowly and adds every particle's
 contribution to a parameter into one shared number): per substep, :meth:`Simulator.tabulate_contact`
 and :meth:`Simulator.restore` recompute the grid of the forward pass from the substep's state and SVD,
@@ -161,6 +171,17 @@ class Simulator:
         self.grid_p_bar = ti.Vector.field(3, float, shape=g)
         self.grid_v_bar = ti.Vector.field(3, float, shape=g)
         self.friction_bar = ti.Vector.field(2, float, shape=g)
+        # gathering transfers: particles binned by the base node of their stencil (count and first index
+        # of each bin, each particle's index in bin order), and per particle in bin order its offset from
+        # the base node (cells), B-spline weights per node offset and axis, and what it transfers (m v and
+        # the affine momentum, or v̄ and (4/Δx²) C̄)
+        self.bin_count = ti.field(ti.i32, shape=g)
+        self.bin_first = ti.field(ti.i32, shape=g)
+        self.bin_rank = ti.field(ti.i32, shape=n)
+        self.sorted_fx = ti.Vector.field(3, float, shape=n)
+        self.sorted_W = ti.field(float, shape=(n, 3, 3))
+        self.sorted_a = ti.Vector.field(3, float, shape=n)
+        self.sorted_A = ti.Matrix.field(3, 3, float, shape=n)
 
         self._params = None
         self._origin = self._tips = self._effector_bounds = None  # of the current scene, for _begin_step
@@ -379,6 +400,57 @@ class Simulator:
             v += w * self.grid_v[node]
         return v
 
+    @ti.func
+    def bin_particles(self, s):
+        """Sort the particles of slot s into bins by their stencil's base node (a counting sort in one
+        serial loop: a few µs per thousand particles), for :meth:`gathered`. Bases lie in the grid
+        region less its last two nodes per axis."""
+        lo, hi = self.region_lo[None], self.region_hi[None] - 2
+        for _ in range(1):  # one thread: the counts, their running sum and the order depend on each other
+            for I in ti.grouped(ti.ndrange((lo[0], hi[0]), (lo[1], hi[1]), (lo[2], hi[2]))):
+                self.bin_count[I] = 0
+            for p in range(self.n_particles[None]):
+                self.bin_count[self.stencil_base(self.x[s, p])] += 1
+            end = 0
+            for I in ti.grouped(ti.ndrange((lo[0], hi[0]), (lo[1], hi[1]), (lo[2], hi[2]))):
+                end += self.bin_count[I]
+                self.bin_first[I] = end
+            for p in range(self.n_particles[None]):
+                base = self.stencil_base(self.x[s, p])
+                self.bin_first[base] -= 1
+                self.bin_rank[p] = self.bin_first[base]
+
+    @ti.func
+    def sort_transfer(self, s, p, a, A, with_weights: ti.template()):
+        """Store particle p's transfer (vector ``a``, matrix ``A``) in bin order, and with ``with_weights``
+        its stencil offset and weights at slot s."""
+        q = self.bin_rank[p]
+        self.sorted_a[q], self.sorted_A[q] = a, A
+        if ti.static(with_weights):
+            _, fx, W, _D = self.stencil(self.x[s, p])
+            self.sorted_fx[q] = fx
+            for o, axis in ti.static(ti.ndrange(3, 3)):
+                self.sorted_W[q, o, axis] = W[o, axis]
+
+    @ti.func
+    def gathered(self, I):
+        """Node I's sums over the particles (binned by :meth:`bin_particles`, transfers stored by
+        :meth:`sort_transfer`) whose stencils reach it: Σ w and Σ w (a + A (x_i − x_p)). Forward (a, A) =
+        (m v, affine momentum): the mass over m and the momentum that :meth:`particle_to_grid` scatters;
+        backward (v̄, (4/Δx²) C̄): the velocity gradient that :meth:`grid_to_particle_scatter_adjoint` scatters."""
+        lo, hi = self.region_lo[None], self.region_hi[None] - 3
+        weight, total = 0.0, ti.Vector.zero(float, 3)
+        for o in ti.grouped(ti.ndrange(3, 3, 3)):
+            base = I - o
+            if (base >= lo).all() and (base <= hi).all():
+                first = self.bin_first[base]
+                for q in range(first, first + self.bin_count[base]):
+                    w = self.sorted_W[q, o[0], 0] * self.sorted_W[q, o[1], 1] * self.sorted_W[q, o[2], 2]
+                    dpos = (o.cast(float) - self.sorted_fx[q]) * self.dx
+                    total += w * (self.sorted_a[q] + self.sorted_A[q] @ dpos)
+                    weight += w
+        return weight, total
+
     # ------------------------------------------------------------------ contact
     @ti.func
     def walled(self, I, v, w):
@@ -466,6 +538,25 @@ class Simulator:
         self.add_material_bar(p, ti.Vector([0.0, 0.0, 0.0, 0.0, mu_table_bar, mu_effector_bar]))
         return v_bar
 
+    def gathers(self, serial: bool) -> bool:
+        """Whether the transfers gather at the nodes (loops on several CPU threads) rather than scatter
+        from the particles (one thread, or a GPU): see the module docstring."""
+        return not serial and self.config.arch == "cpu"
+
+    @ti.func
+    def transfer_to_grid_and_update(self, s, serial: ti.template()):
+        """Loops 3 and 4 of substep s: mass and momentum to the grid, then the grid update."""
+        if ti.static(not self.gathers(serial)):
+            ti.loop_config(serialize=serial)
+            for p in range(self.n_particles[None]):
+                self.particle_to_grid(s, p)
+        ti.loop_config(serialize=serial)
+        for I in ti.grouped(ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)])):
+            if ti.static(self.gathers(serial)):
+                weight, self.grid_p[I] = self.gathered(I)
+                self.grid_m[I] = weight * self.particle_mass[None]
+            self.update_node(I)
+
     # ------------------------------------------------------------------ substep kernels
     @ti.kernel
     def tabulate_contact(self, s: ti.i32, serial: ti.template()):
@@ -475,12 +566,14 @@ class Simulator:
         :meth:`advance` and :meth:`restore`: the effector's shapes are most of the compile time)."""
         self.region_lo[None] = ti.Vector(self.grid_shape)
         self.region_hi[None] = ti.Vector.zero(ti.i32, 3)
-        ti.loop_config(serialize=serial)
+        ti.loop_config(serialize=ti.static(serial or self.gathers(serial)))  # contended atomics: worse than one thread
         for p in range(self.n_particles[None]):
             base = self.stencil_base(self.x[s, p])
             for a in ti.static(range(3)):
                 ti.atomic_min(self.region_lo[None][a], base[a])
                 ti.atomic_max(self.region_hi[None][a], base[a] + 3)
+        if ti.static(self.gathers(serial)):
+            self.bin_particles(s)
         ti.loop_config(serialize=serial)
         for I in ti.grouped(ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)])):
             self.grid_m[I] = 0.0
@@ -505,12 +598,9 @@ class Simulator:
             elastic = plastic_flow(sigma, self.yield_stress[None], self.shear[None])
             self.F[s + 1, p] = compose(u, elastic, v)
             self.affine[p] = self.affine_momentum(s, p, u, elastic)
-        ti.loop_config(serialize=serial)
-        for p in range(self.n_particles[None]):
-            self.particle_to_grid(s, p)
-        ti.loop_config(serialize=serial)
-        for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
-            self.update_node(ti.Vector([i, j, k]))
+            if ti.static(self.gathers(serial)):
+                self.sort_transfer(s, p, self.particle_mass[None] * self.v[s, p], self.affine[p], True)
+        self.transfer_to_grid_and_update(s, serial)
         ti.loop_config(serialize=serial)
         for p in range(self.n_particles[None]):
             v, self.C[s + 1, p] = self.grid_to_particle(s, p)
@@ -527,10 +617,9 @@ class Simulator:
             elastic = plastic_flow(self.sigma[s, p], self.yield_stress[None], self.shear[None])
             self.elastic[p] = elastic
             self.affine[p] = self.affine_momentum(s, p, self.U[s, p], elastic)
-            self.particle_to_grid(s, p)
-        ti.loop_config(serialize=serial)
-        for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
-            self.update_node(ti.Vector([i, j, k]))
+            if ti.static(self.gathers(serial)):
+                self.sort_transfer(s, p, self.particle_mass[None] * self.v[s, p], self.affine[p], True)
+        self.transfer_to_grid_and_update(s, serial)
 
     @ti.kernel
     def adjoint(self, s: ti.i32, serial: ti.template()):
@@ -546,10 +635,15 @@ class Simulator:
             if self.in_contact(s, p):  # only then does the velocity before contact matter
                 velocity_bar = self.particle_contact_adjoint(s, p, self.grid_velocity(s, p), velocity_bar)
             self.velocity_bar[p] = velocity_bar
-            self.grid_to_particle_scatter_adjoint(s, p, velocity_bar, self.C_bar[later, p])
+            if ti.static(self.gathers(serial)):
+                self.sort_transfer(s, p, velocity_bar, 4.0 * self.inv_dx * self.inv_dx * self.C_bar[later, p], False)
+            else:
+                self.grid_to_particle_scatter_adjoint(s, p, velocity_bar, self.C_bar[later, p])
         ti.loop_config(serialize=serial)
-        for i, j, k in ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)]):
-            self.update_node_adjoint(ti.Vector([i, j, k]))
+        for I in ti.grouped(ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)])):
+            if ti.static(self.gathers(serial)):
+                _, self.grid_v_bar[I] = self.gathered(I)
+            self.update_node_adjoint(I)
         for p in range(self.n_particles[None]):  # no atomics, heavy (SVD adjoint): always worth threads
             x_bar, v_bar, affine_bar, mass_bar = self.transfers_adjoint(s, p, self.velocity_bar[p], self.C_bar[later, p])
             self.add_material_bar(p, ti.Vector([0.0, 0.0, mass_bar, 0.0, 0.0, 0.0]))
