@@ -9,8 +9,7 @@ from dpsi.provenance import recorded
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]) as log:
     record = run_isolated(snakemake.wildcards.motion, float(snakemake.wildcards.density),
-                          snakemake.params.measured_iterations,
-                          {**snakemake.params.simulator, "threads": snakemake.threads})
+                          snakemake.params.measured_iterations, snakemake.params.simulator)
     log.info("%s", json.dumps(record))
     with atomic_output(snakemake.output[0]) as tmp:
         tmp.write_text(json.dumps(record, indent=1))

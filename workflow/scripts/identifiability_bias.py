@@ -15,7 +15,7 @@ from dpsi.twin import GROUND_TRUTH_FILE, load_ground_truth
 
 out, p = snakemake.output, snakemake.params
 with recorded(out, snakemake.input, dict(p), snakemake.log[0]):
-    simulator = Simulator(SimulatorConfig(**p.simulator, threads=snakemake.threads))
+    simulator = Simulator(SimulatorConfig(**p.simulator))
     sources, minima = [], []
     for finer, reconstructed, twin, after in zip(snakemake.input.datapoints, snakemake.input.reconstructed,
                                                  snakemake.input.twin, snakemake.input.after_clouds):

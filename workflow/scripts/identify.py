@@ -21,5 +21,5 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
         Path(snakemake.output.summary).parent, int(w.level), w.loss, training,
         [load_datapoint(f) for f in snakemake.input.validation], seed=int(w.seed), iterations=p.iterations,
         initial=HAND_PICKED if p.initial == "hand-picked" else None, truth=truth,
-        simulator=Simulator(SimulatorConfig(**p.simulator, threads=snakemake.threads)), progress=sys.stderr,
-        restart_if_different=True, labels=labels, known=p.known)
+        simulator=Simulator(SimulatorConfig(**p.simulator)), progress=sys.stderr, restart_if_different=True,
+        labels=labels, known=p.known)

@@ -12,7 +12,7 @@ from dpsi.twin_plan import load_truth, plan_from_config
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
     twin, p = snakemake.params.twin, snakemake.params
     materials = load_truth(Path(snakemake.input.truth[0]).parent)["materials"]
-    config = SimulatorConfig(**{**p.simulator, "max_particles": twin["max_particles"]}, threads=snakemake.threads)
+    config = SimulatorConfig(**{**p.simulator, "max_particles": twin["max_particles"]})
     datapoint = reconstructed_twin_datapoint(snakemake.output.raw, snakemake.wildcards.id,
                                              plan_from_config(twin["groups"]), twin["seed"], config, p.density,
                                              materials)

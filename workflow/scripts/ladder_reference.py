@@ -13,7 +13,7 @@ from dpsi.twin_plan import load_truth
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
     truth = load_truth(Path(snakemake.input.truth[0]).parent)["materials"]["clay"]
-    result = reference(Simulator(SimulatorConfig(**snakemake.params.simulator, threads=snakemake.threads)),
+    result = reference(Simulator(SimulatorConfig(**snakemake.params.simulator)),
                        [load_datapoint(f) for f in snakemake.input.training],
                        [load_datapoint(f) for f in snakemake.input.validation], truth, int(snakemake.wildcards.level))
     with atomic_output(snakemake.output[0]) as tmp:

@@ -11,5 +11,5 @@ from dpsi.twin_plan import load_truth
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
     truth = load_truth(Path(snakemake.input.truth[0]).parent)["materials"][snakemake.params.material]
-    simulator = Simulator(SimulatorConfig(**snakemake.params.simulator, threads=snakemake.threads))
+    simulator = Simulator(SimulatorConfig(**snakemake.params.simulator))
     save_datapoint(snakemake.output[0], same_model_datapoint(load_datapoint(snakemake.input.datapoint), simulator, truth))

@@ -10,7 +10,7 @@ w, p = snakemake.wildcards, snakemake.params
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]) as log:
     fixed = resolve_from_files(p.fixed, snakemake.input.fixed)
     log.info("%s landscape on %s, other parameters %s", w.pair, w.dataset, fixed.as_dict())
-    landscape = landscape_compute.compute(Simulator(SimulatorConfig(**p.simulator, threads=snakemake.threads)),
+    landscape = landscape_compute.compute(Simulator(SimulatorConfig(**p.simulator)),
                                            [load_datapoint(f) for f in snakemake.input.datapoints],
                                            landscapes.pair_by_name(w.pair), fixed, p.resolution, p.losses)
     landscapes.save_landscape(snakemake.output[0], landscape)

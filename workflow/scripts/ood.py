@@ -27,7 +27,7 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
         loss, dataset = summaries[0]["loss"], summaries[0]["dataset"]
     else:
         params, loss, dataset = HAND_PICKED, HAND_PICKED_LABEL, ""
-    simulator = Simulator(SimulatorConfig(**snakemake.params.simulator, threads=snakemake.threads))
+    simulator = Simulator(SimulatorConfig(**snakemake.params.simulator))
     records, finals = [], {}
     for path in snakemake.input.datapoints:
         dp = load_datapoint(path)

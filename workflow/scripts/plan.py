@@ -14,8 +14,8 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
     dp = load_datapoint(snakemake.input.datapoint[0])
     actions = ActionSet(tuple(settings["motions"]), by_name(settings["effector"]), settings["grid"],
                         settings["spacing"])
-    simulator = Simulator(SimulatorConfig(**snakemake.params.simulator, threads=snakemake.threads))
-    planner = Planner(simulator, params, actions, dp.particle_volume, dp.table_z)
+    planner = Planner(Simulator(SimulatorConfig(**snakemake.params.simulator)), params, actions,
+                      dp.particle_volume, dp.table_z)
     plan = planner.plan(dp.particles, dp.heightmap_target(), settings["actions"])
     log.info("height-map distance %.1f mm → %.1f mm", plan.initial_distance_mm, plan.final_distance_mm)
     save_plan(snakemake.output.record, snakemake.output.arrays, plan, datapoint=dp.id,

@@ -11,5 +11,4 @@ settings = snakemake.params.twin
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
     twin.write_twin_table(Path(snakemake.output.table).parent, plan_from_config(settings["groups"]),
                           seed=settings["seed"], density=settings["density"],
-                          config=SimulatorConfig(dx=settings["dx"], max_particles=settings["max_particles"],
-                                                 threads=snakemake.threads))
+                          config=SimulatorConfig(dx=settings["dx"], max_particles=settings["max_particles"]))

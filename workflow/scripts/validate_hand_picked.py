@@ -10,7 +10,7 @@ from dpsi.provenance import recorded
 from dpsi.simulation import Simulator, SimulatorConfig
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
-    simulator = Simulator(SimulatorConfig(**snakemake.params.simulator, threads=snakemake.threads))
+    simulator = Simulator(SimulatorConfig(**snakemake.params.simulator))
     metrics, failed = validation(simulator, [load_datapoint(f) for f in snakemake.input.validation], HAND_PICKED)
     with atomic_output(snakemake.output[0]) as tmp:
         tmp.write_text(json.dumps({"level": int(snakemake.wildcards.level), "parameters": HAND_PICKED.as_dict(), "validation": metrics, "failed": failed}))
