@@ -14,8 +14,8 @@ machine or for an H100 GPU with ``--arch cuda``).
 
 The scaling benchmark times one forward + backward of a larger lump (~17 000 particles at 3.3e8/m³) on the
 CPU, each in a fresh process: on one thread, on every CPU the process may use with the default loops
-(scatters on one thread), and on every CPU with every loop parallel (``serial: false``, atomic scatters),
-and prints each speed-up over one thread beside the target for a 16-core machine.
+(scatters on one thread), and on every CPU with every loop parallel (``serial: false``: the transfers
+gather), and prints each speed-up over one thread beside the target for a 16-core machine.
 """
 
 from __future__ import annotations
