@@ -403,8 +403,8 @@ class Simulator:
     @ti.func
     def bin_particles(self, s):
         """Sort the particles of slot s into bins by their stencil's base node (a counting sort in one
-        serial loop: a few µs per thousand particles), for :meth:`gathered`. Bases lie in the grid
-        region less its last two nodes per axis."""
+        serial loop: about 0.2 ms a substep at 17 000 particles), for :meth:`gathered`. Bases lie in the
+        grid region less its last two nodes per axis."""
         lo, hi = self.region_lo[None], self.region_hi[None] - 2
         for _ in range(1):  # one thread: the counts, their running sum and the order depend on each other
             for I in ti.grouped(ti.ndrange((lo[0], hi[0]), (lo[1], hi[1]), (lo[2], hi[2]))):
