@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -164,8 +165,6 @@ def measure_scaling(motion: str, density: float) -> list[dict]:
     """One forward + backward of ``motion`` on the benchmark lump at ``density`` for each of
     :data:`SCALING_SETTINGS` (fresh processes), each record with its ``label``, the CPUs used
     (``threads``) and its ``speedup`` over the first (one thread)."""
-    import os
-
     capacity = {"max_particles": len(bench_lump_particles(density))}
     cpus = len(os.sched_getaffinity(0))
     records = [{**run_isolated(motion, density, simulator={**capacity, **settings}), "label": label,

@@ -544,12 +544,8 @@ class Simulator:
         return not serial and self.config.arch == "cpu"
 
     @ti.func
-    def transfer_to_grid_and_update(self, s, serial: ti.template()):
-        """Loops 3 and 4 of substep s: mass and momentum to the grid, then the grid update."""
-        if ti.static(not self.gathers(serial)):
-            ti.loop_config(serialize=serial)
-            for p in range(self.n_particles[None]):
-                self.particle_to_grid(s, p)
+    def update_grid(self, serial: ti.template()):
+        """Loop 4 over the grid region (where the transfers gather, their loop 3 first, node by node)."""
         ti.loop_config(serialize=serial)
         for I in ti.grouped(ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)])):
             if ti.static(self.gathers(serial)):
@@ -574,10 +570,11 @@ class Simulator:
                 ti.atomic_max(self.region_hi[None][a], base[a] + 3)
         if ti.static(self.gathers(serial)):
             self.bin_particles(s)
-        ti.loop_config(serialize=serial)
-        for I in ti.grouped(ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)])):
-            self.grid_m[I] = 0.0
-            self.grid_p[I] = ti.Vector.zero(float, 3)
+        if ti.static(not self.gathers(serial)):  # gathering sets every node of the region
+            ti.loop_config(serialize=serial)
+            for I in ti.grouped(ti.ndrange(*[(self.region_lo[None][a], self.region_hi[None][a]) for a in range(3)])):
+                self.grid_m[I] = 0.0
+                self.grid_p[I] = ti.Vector.zero(float, 3)
         lo = ti.max(self.reach_node_lo[None], self.region_lo[None])
         extent = ti.max(ti.min(self.reach_node_hi[None], self.region_hi[None]) - lo, 0)
         ti.loop_config(serialize=serial)
@@ -600,7 +597,11 @@ class Simulator:
             self.affine[p] = self.affine_momentum(s, p, u, elastic)
             if ti.static(self.gathers(serial)):
                 self.sort_transfer(s, p, self.particle_mass[None] * self.v[s, p], self.affine[p], True)
-        self.transfer_to_grid_and_update(s, serial)
+        if ti.static(not self.gathers(serial)):
+            ti.loop_config(serialize=serial)
+            for p in range(self.n_particles[None]):
+                self.particle_to_grid(s, p)
+        self.update_grid(serial)
         ti.loop_config(serialize=serial)
         for p in range(self.n_particles[None]):
             v, self.C[s + 1, p] = self.grid_to_particle(s, p)
@@ -619,7 +620,9 @@ class Simulator:
             self.affine[p] = self.affine_momentum(s, p, self.U[s, p], elastic)
             if ti.static(self.gathers(serial)):
                 self.sort_transfer(s, p, self.particle_mass[None] * self.v[s, p], self.affine[p], True)
-        self.transfer_to_grid_and_update(s, serial)
+            else:
+                self.particle_to_grid(s, p)
+        self.update_grid(serial)
 
     @ti.kernel
     def adjoint(self, s: ti.i32, serial: ti.template()):
