@@ -40,17 +40,26 @@ def mean_losses(simulator: Simulator, datapoints: Sequence[Datapoint], params: P
 
 def compute(simulator: Simulator, datapoints: Sequence[Datapoint], pair: Pair, fixed: Parameters,
             resolution: int, losses: Sequence[str], progress: TextIO | None = None) -> Landscape:
-    """The landscape of ``losses`` over ``pair`` (``resolution`` values per axis) on ``datapoints``, the
-    other parameters at ``fixed`` (see the module doc for failures); progress per grid point on ``progress``
-    (default stderr)."""
+    """The landscape of ``losses`` over ``pair`` (``resolution`` values per axis spanning each parameter's
+    full range) on ``datapoints``: :func:`on_grid` of :func:`dpsi.landscapes.axis`."""
+    return on_grid(simulator, datapoints, pair, fixed, axis(pair.first, resolution), axis(pair.second, resolution),
+                   losses, progress)
+
+
+def on_grid(simulator: Simulator, datapoints: Sequence[Datapoint], pair: Pair, fixed: Parameters,
+            first: Sequence[float], second: Sequence[float], losses: Sequence[str],
+            progress: TextIO | None = None) -> Landscape:
+    """The landscape of ``losses`` on ``datapoints`` at every pair of ``pair.first`` in ``first`` and
+    ``pair.second`` in ``second`` (SI), the other parameters at ``fixed`` (see the module doc for failures);
+    progress per grid point on ``progress`` (default stderr)."""
     if not datapoints:
         raise ValueError("a landscape needs at least one datapoint")
     for name in losses:
         loss_by_name(name)
-    first, second = axis(pair.first, resolution), axis(pair.second, resolution)
-    values = np.full((len(losses), resolution, resolution), np.nan)
+    first, second = np.asarray(first, dtype=float), np.asarray(second, dtype=float)
+    values = np.full((len(losses), len(first), len(second)), np.nan)
     errors = []
-    bar = Progress(resolution * resolution, f"landscape {pair.name}", progress)
+    bar = Progress(values[0].size, f"landscape {pair.name}", progress)
     for i, x in enumerate(first):
         for j, y in enumerate(second):
             params = fixed.replace(**{pair.first: x, pair.second: y})
@@ -62,11 +71,11 @@ def compute(simulator: Simulator, datapoints: Sequence[Datapoint], pair: Pair, f
                 errors.append(err)
                 log.warning("%s: simulation failed, cell left NaN: %s", where, err)
                 status = "simulation failed"
-            bar.update(i * resolution + j + 1, f"{where}: {status}")
+            bar.update(i * len(second) + j + 1, f"{where}: {status}")
     bar.close()
-    if len(errors) == resolution * resolution:
+    if len(errors) == values[0].size:
         raise SimulationError(f"every simulation of the {pair.name} landscape failed; the first: {errors[0]}")
     return Landscape(pair, tuple(losses), first, second, values, fixed)
 
 
-__all__ = ["mean_losses", "compute"]
+__all__ = ["mean_losses", "compute", "on_grid"]

@@ -73,6 +73,19 @@ class Landscape:
                              "(losses, first axis, second axis)")
 
 
+def fixed_cell(landscape: Landscape) -> tuple[int, int]:
+    """Grid indices (i, j) of the landscape's fixed values of its two parameters; an error if an axis does
+    not hold its fixed value."""
+    pair, fixed = landscape.pair, landscape.fixed
+    index = []
+    for name, values in ((pair.first, landscape.first), (pair.second, landscape.second)):
+        hits = np.flatnonzero(np.isclose(values, getattr(fixed, name), rtol=1e-9, atol=0.0))
+        if len(hits) != 1:
+            raise ValueError(f"the landscape's {name} axis does not hold its fixed value {getattr(fixed, name):g}")
+        index.append(int(hits[0]))
+    return index[0], index[1]
+
+
 _ARRAYS = ("first", "second", "values", "fixed")
 
 
@@ -95,5 +108,5 @@ def load_landscape(path: str | os.PathLike) -> Landscape:
         raise ValueError(f"{path} is not a landscape file: {err}") from err
 
 
-__all__ = ["Pair", "PAIRS", "pair_by_name", "axis", "Landscape", "save_landscape",
+__all__ = ["Pair", "PAIRS", "pair_by_name", "axis", "Landscape", "fixed_cell", "save_landscape",
            "load_landscape"]

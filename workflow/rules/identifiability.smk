@@ -180,8 +180,62 @@ if "identifiability" in ANALYSES:
         script:
             "../scripts/identifiability_bias.py"
 
+    rule ladder_landscape:
+        input:
+            training=lambda w: ladder_prepared(w.rung, training_ids(1, w.dataset)),
+            truth=truth_file(),
+            code=code("ladder_landscape"),
+        output:
+            LADDER_LANDSCAPE,
+        log:
+            log_file("identifiability/{rung}_{dataset}_landscape"),
+        wildcard_constraints:
+            rung="R[0-2]",
+        conda:
+            "../envs/dpsi.yaml"
+        threads: 1
+        resources:
+            mem_mb=3000,
+            # minutes: 36 simulations per datapoint, a few seconds each on a CPU
+            runtime=lambda w: 10 + 2 * len(training_ids(1, w.dataset)),
+            gpu=GPU,
+        params:
+            losses=LADDER["losses"],
+            simulator=simulator_params(),
+        script:
+            "../scripts/ladder_landscape.py"
+
+    rule identifiability_landscapes:
+        input:
+            landscapes=[
+                LADDER_LANDSCAPE.format(rung=rung, dataset=dataset)
+                for rung, dataset in LANDSCAPE_LABELS
+            ],
+            code=code("ladder_landscapes"),
+        output:
+            table=table_files(
+                "identifiability_landscape", "../report/identifiability_landscape.rst"
+            ),
+            figure=figure_files(
+                "identifiability_landscape",
+                "../report/identifiability_landscape_figure.rst",
+            ),
+        log:
+            log_file("identifiability_landscape"),
+        conda:
+            "../envs/dpsi.yaml"
+        threads: 1
+        resources:
+            mem_mb=1000,
+            runtime=5,
+        params:
+            labels=LANDSCAPE_LABELS,
+        script:
+            "../scripts/ladder_landscapes.py"
+
     rule identifiability:
         input:
             ladder_outputs("identifiability"),
             rules.identifiability_bias.output,
+            rules.identifiability_landscapes.output,
         localrule: True

@@ -98,3 +98,8 @@ if "identifiability" in ANALYSES:
             for i in training_ids(min(LADDER["levels"]), d)
         ]
         return list(dict.fromkeys(ids))
+
+    LADDER_LANDSCAPE = f"{LADDER_ROOT}/{{rung}}/L1/{{dataset}}/landscape.npz"
+    LANDSCAPE_LABELS = [
+        (rung, dataset) for rung in LADDER["rungs"] for dataset in LADDER["datasets"]
+    ]
