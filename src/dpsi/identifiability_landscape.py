@@ -56,7 +56,10 @@ def as_good_as_truth(landscape: Landscape) -> pd.DataFrame:
     the truth's own value fits that well, up to the grid's resolution), with the number of those cells among
     the finite ones."""
     i0, j0 = fixed_cell(landscape)
-    pair = landscape.pair
+    pair, first, second = landscape.pair, landscape.first[:, None], landscape.second[None, :]
+    shape = landscape.values.shape[1:]
+    grids = {pair.first: np.broadcast_to(first, shape), pair.second: np.broadcast_to(second, shape),
+             f"{pair.second}/{pair.first}": second / first}
     rows = []
     for k, loss in enumerate(landscape.losses):
         values = landscape.values[k]
@@ -65,10 +68,7 @@ def as_good_as_truth(landscape: Landscape) -> pd.DataFrame:
             raise ValueError(f"the {loss} landscape has no value at the truth (its simulation failed)")
         good = np.isfinite(values) & (values <= at_truth)
         best = np.unravel_index(np.nanargmin(values), values.shape)
-        ratio = landscape.second[None, :] / landscape.first[:, None]  # e.g. the yield strain σ_y / E
-        for name, grid in ((pair.first, np.broadcast_to(landscape.first[:, None], values.shape)),
-                           (pair.second, np.broadcast_to(landscape.second[None, :], values.shape)),
-                           (f"{pair.second}/{pair.first}", ratio)):
+        for name, grid in grids.items():
             true = grid[i0, j0]
             reach = grid[good] / true
             rows.append({"loss": loss, "parameter": name, "truth": true, "argmin": grid[best],

@@ -3,7 +3,9 @@ share datapoints and differ in how the targets come about: R0 same model, R1 rec
 identification resolution, R2 the main pipeline's finer twin. At R0 the PCD and PRT targets are the same
 particles, so a PCD loss's run there is its PRT loss's run, relabelled (ladder_same_target). `snakemake
 identifiability` builds the ladder of the config; `tables` and `figures` include the rungs and losses listed
-in `in_tables` (R0 in the quick default).
+in `in_tables` (R0 in the quick default). Beside the runs: where the bias comes from and where each loss has
+its minimum (identifiability_bias), and the losses over (E, σ_y) around the truth on every rung
+(ladder_landscape, identifiability_landscapes).
 """
 
 
