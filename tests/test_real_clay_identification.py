@@ -6,15 +6,22 @@ import numpy as np
 import open3d as o3d
 import pytest
 
+import dpsi.real_clay
 from dpsi.heightmap import height_map, heightmap_distance_mm
+from dpsi.identifiability_landscape import PAIR
+from dpsi.landscapes import Landscape
 from dpsi.parameters import HAND_PICKED, LEVEL1_FIXED, Parameters
 from dpsi.prepare import surface_points
 from dpsi.real_clay import (
+    GRID,
     PAIRS,
     comparison_rows,
+    grid_report,
     identify_on_real,
+    main,
     pair_meshes,
     real_datapoint,
+    simulated_mm,
     table_aligned,
 )
 from dpsi.simulation import Simulator, SimulatorConfig
@@ -87,3 +94,32 @@ def test_one_identification_iteration_on_a_real_pair(tmp_path):
     same = comparison_rows(simulator, [real_datapoint(REAL_CLAY, "rectangle-8", 2e7)],
                            HAND_PICKED.replace(**LEVEL1_FIXED), HAND_PICKED.replace(**LEVEL1_FIXED))[0]
     assert same["identified_mm"] == pytest.approx(rows[1]["hand_picked_mm"]) and same["change"] == 0
+
+
+def test_grid_report_lists_the_cells_closer_than_the_hand_picked_values_on_every_pair():
+    e, s = np.array(GRID["E"]), np.array(GRID["yield_stress"])
+    hand = (list(e).index(HAND_PICKED.E), list(s).index(HAND_PICKED.yield_stress))
+    first, second = np.full((len(e), len(s)), 500.0), np.full((len(e), len(s)), 600.0)
+    first[hand], second[hand] = 400.0, 450.0
+    first[3, 1], second[3, 1] = 300.0, 440.0  # closer on both pairs
+    first[4, 4], second[4, 4] = 350.0, 460.0  # closer on the first only
+    landscapes = {name: Landscape(PAIR, ("heightmap",), e, s, values[None], HAND_PICKED.replace(**LEVEL1_FIXED))
+                  for name, values in (("p", first), ("q", second))}
+    text = grid_report(landscapes)
+    assert "| p | 400 | 300 | 60, 1.5 | -25.0 % |" in text and "| q | 450 | 440 | 60, 1.5 | -2.2 % |" in text
+    assert text.endswith("on every pair: (60, 1.5).\n")
+    first[3, 1] = 401.0
+    assert grid_report(landscapes).endswith("on every pair: none.\n")
+
+
+@needs_real_clay
+def test_grid_command_reports_every_pair_at_the_hand_picked_values(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(dpsi.real_clay, "GRID", {"E": (HAND_PICKED.E, 2 * HAND_PICKED.E),
+                                                 "yield_stress": (HAND_PICKED.yield_stress, 2 * HAND_PICKED.yield_stress)})
+    assert main(["--shared", str(REAL_CLAY), "--grid", "--density", "2e7", "--out", str(tmp_path / "g.md")]) == 0
+    text = (tmp_path / "g.md").read_text()
+    assert text in capsys.readouterr().out  # printed as well
+    simulator = Simulator(SimulatorConfig())
+    for name in PAIRS:
+        hand = simulated_mm(simulator, real_datapoint(REAL_CLAY, name, 2e7), HAND_PICKED.replace(**LEVEL1_FIXED))
+        assert f"| {name} | {hand:.0f} |" in text

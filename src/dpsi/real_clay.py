@@ -19,6 +19,10 @@ Pairs and assumptions:
   share no frame. We align them: each mesh is shifted so that its lowest z lies on the table z = 0 and
   the after mesh's footprint centre (bounding-box centre in x, y) lies on the before mesh's.
 
+With ``--grid`` the command identifies nothing: it simulates every pair over a grid of (E, σ_y) around the
+hand-picked values and lists the cells closer to the real after states than the hand-picked values on every
+pair (:func:`grid_landscapes`, :func:`grid_report`).
+
 Lengths in m (robot base frame, table at z = 0); distances in mm.
 """
 
@@ -28,7 +32,7 @@ import argparse
 import json
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,7 +42,10 @@ import open3d as o3d
 from dpsi.datapoint import Datapoint
 from dpsi.heightmap import heightmap_distance_mm
 from dpsi.effectors import by_name
+from dpsi.identifiability_landscape import PAIR
 from dpsi.identification import identify, scene
+from dpsi.landscape_compute import on_grid
+from dpsi.landscapes import Landscape, fixed_cell
 from dpsi.losses import LOSSES, simulated_heightmap
 from dpsi.motions import get_motion, plan, resample
 from dpsi.parameters import HAND_PICKED, LEVEL1_FIXED, Parameters
@@ -187,6 +194,37 @@ def identify_on_real(shared: str | Path, train: str, out_dir: str | Path, iterat
     return summary, comparison_rows(simulator, ordered, identified, HAND_PICKED.replace(**LEVEL1_FIXED), train)
 
 
+GRID = {"E": (1e4, 1.5e4, 3e4, 6e4, 1.2e5, 2.4e5), "yield_stress": (1e3, 1.5e3, 2e3, 3e3, 5e3, 8e3)}
+"""The (E, σ_y) values (Pa) of :func:`grid_landscapes`: around the hand-picked 30 kPa and 1 kPa, within
+their ranges (σ_y's starts at the hand-picked value)."""
+
+
+def grid_landscapes(simulator: Simulator, datapoints: Sequence[Datapoint]) -> dict[str, Landscape]:
+    """Per datapoint, the height-map distance (mm) to its real after state over :data:`GRID`, ν, ρ and the
+    frictions as hand-picked at level 1."""
+    hand_picked = HAND_PICKED.replace(**LEVEL1_FIXED)
+    return {dp.id: on_grid(simulator, [dp], PAIR, hand_picked, GRID["E"], GRID["yield_stress"], ["heightmap"])
+            for dp in datapoints}
+
+
+def grid_report(landscapes: Mapping[str, Landscape]) -> str:
+    """Markdown of :func:`grid_landscapes`: per pair the hand-picked distance, the grid's lowest and where
+    it is; then the (E, σ_y) cells closer than the hand-picked values on every pair."""
+    lines = ["| pair | hand-picked (mm) | grid minimum (mm) | at E, σ_y (kPa) | change |", "|---|---|---|---|---|"]
+    better = True
+    for name, landscape in landscapes.items():
+        values = landscape.values[0]
+        hand = values[fixed_cell(landscape)]
+        i, j = np.unravel_index(np.nanargmin(values), values.shape)
+        lines.append(f"| {name} | {hand:.0f} | {values[i, j]:.0f} | {landscape.first[i] / 1e3:g}, "
+                     f"{landscape.second[j] / 1e3:g} | {100 * (values[i, j] - hand) / hand:+.1f} % |")
+        better = better & (values < hand)
+    first = next(iter(landscapes.values()))
+    cells = [f"({first.first[i] / 1e3:g}, {first.second[j] / 1e3:g})" for i, j in zip(*np.nonzero(better))]
+    return ("\n".join(lines) + "\n\nCells (E, σ_y in kPa) closer than the hand-picked values on every pair: "
+            + (", ".join(cells) if cells else "none") + ".\n")
+
+
 def report(summary: dict, rows: Sequence[dict], train: str, loss: str, density: float, iterations: int,
            command: str) -> str:
     """The markdown section of one run: settings, the ``command`` that made it, identified parameters and
@@ -209,6 +247,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="seed of the planned trajectories")
     parser.add_argument("--work", default="results/real-clay", help="folder for the identification runs")
     parser.add_argument("--out", help="markdown file to write the section to (printed in any case)")
+    parser.add_argument("--grid", action="store_true",
+                        help="instead of identifying: every pair's height-map distance over a grid of (E, σ_y)")
     args = parser.parse_args(argv)
     try:
         check_shared(args.shared)
@@ -216,6 +256,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(err, file=sys.stderr)
         return 2
     simulator = Simulator(SimulatorConfig())
+    if args.grid:
+        datapoints = [real_datapoint(args.shared, name, args.density, args.seed, simulator.config) for name in PAIRS]
+        return _write(grid_report(grid_landscapes(simulator, datapoints)), args.out)
     run_dir = Path(args.work) / f"{args.train}-{args.loss}-{args.density:.3g}-{args.iterations}"
     summary, rows = identify_on_real(args.shared, args.train, run_dir, args.iterations, args.density, args.loss,
                                      simulator, args.seed)
@@ -223,8 +266,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = report(summary, rows, args.train, args.loss, args.density, args.iterations, command)
     with atomic_output(run_dir / "comparison.json") as tmp:
         tmp.write_text(json.dumps(rows, indent=2) + "\n")
-    if args.out:
-        with atomic_output(args.out) as tmp:
+    return _write(text, args.out)
+
+
+def _write(text: str, out: str | None) -> int:
+    """Print ``text`` and write it to ``out`` too if given; the command's exit status."""
+    if out:
+        with atomic_output(out) as tmp:
             tmp.write_text(text)
     print(text)
     return 0
