@@ -4,7 +4,8 @@ truth does, on a made-up landscape, on R0 of the tiny poked block, and drawn."""
 import numpy as np
 import pytest
 
-from dpsi.identifiability_landscape import COLUMNS, FACTORS, PAIR, as_good_as_truth, around, truth_landscape
+from dpsi.identifiability import scan_values
+from dpsi.identifiability_landscape import COLUMNS, FACTORS, PAIR, as_good_as_truth, truth_landscape
 from dpsi.landscapes import Landscape, fixed_cell
 from dpsi.parameters import LEVEL1_FIXED
 from dpsi.reporting.landscapes import plot_truth_landscapes
@@ -15,7 +16,7 @@ from test_identification import TRUTH
 def valley(truth=TRUTH) -> Landscape:
     """A landscape over (E, σ_y) around ``truth``: loss 1 mm at the truth, rising steeply along σ_y and gently
     along E; one cell (2 E, 1.4 σ_y) fits better than the truth, one (4 E, 4 σ_y) failed."""
-    e, s = around("E", truth.E), around("yield_stress", truth.yield_stress)
+    e, s = scan_values("E", truth.E), scan_values("yield_stress", truth.yield_stress)
     f_e, f_s = np.log(e / truth.E), np.log(s / truth.yield_stress)
     values = 1.0 + 0.2 * np.abs(f_e)[:, None] + 10.0 * np.abs(f_s)[None, :]
     values[list(e).index(2 * truth.E), list(s).index(1.4 * truth.yield_stress)] = 0.9

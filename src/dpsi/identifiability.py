@@ -171,6 +171,11 @@ SCAN_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0, 4.0)
 """The one-parameter scans of :func:`loss_minima`: these parameters at these multiples of the truth."""
 
 
+def scan_values(name: str, true: float) -> np.ndarray:
+    """Parameter ``name`` at :data:`SCAN_FACTORS` times ``true`` (SI), those within its range."""
+    return np.array([true * f for f in SCAN_FACTORS if LOWER[name] <= true * f <= UPPER[name]])
+
+
 def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: float, after_cloud: np.ndarray,
                  capture_seed: int = 0) -> dict[str, float]:
     """Where the distance between simulation and truth comes from, for one twin datapoint ``dp`` prepared by
@@ -231,7 +236,7 @@ def loss_minima(simulator: Simulator, dp: Datapoint, truth: Parameters,
     data, drawn_as = targets(dp), dp.heightmap_target()
     for name in SCAN_PARAMETERS:
         true = getattr(truth, name)
-        values = [true * f for f in SCAN_FACTORS if LOWER[name] <= true * f <= UPPER[name]]
+        values = list(scan_values(name, true))
         finals = [simulator.forward(scene(dp), truth.replace(**{name: v}), keep_substeps=False) for v in values]
         maps = [simulated_heightmap(final, drawn_as) for final in finals]
         at_truth = values.index(true)
@@ -247,4 +252,4 @@ def loss_minima(simulator: Simulator, dp: Datapoint, truth: Parameters,
 
 
 __all__ = ["RUNGS", "LADDER_LOSSES", "COLUMNS", "SAME_AT_R0", "relabelled", "check_rung", "same_model_datapoint", "reconstructed_twin_datapoint",
-           "level_truth", "reference", "run_rows", "RUN_LABELS", "ladder_table", "recovery_summary", "SCAN_PARAMETERS", "SCAN_FACTORS", "bias_sources", "loss_minima"]
+           "level_truth", "reference", "run_rows", "RUN_LABELS", "ladder_table", "recovery_summary", "SCAN_PARAMETERS", "SCAN_FACTORS", "scan_values", "bias_sources", "loss_minima"]

@@ -18,10 +18,10 @@ import numpy as np
 import pandas as pd
 
 from dpsi.datapoint import Datapoint
-from dpsi.identifiability import SCAN_FACTORS, level_truth
+from dpsi.identifiability import SCAN_FACTORS, level_truth, scan_values
 from dpsi.landscape_compute import on_grid
 from dpsi.landscapes import Landscape, Pair, fixed_cell
-from dpsi.parameters import LOWER, UPPER, Parameters
+from dpsi.parameters import Parameters
 from dpsi.simulation import Simulator
 
 PAIR = Pair("E", "yield_stress", 1)
@@ -35,18 +35,13 @@ COLUMNS = ("loss", "parameter", "truth", "argmin", "loss_at_truth_mm", "loss_min
 """Columns of :func:`as_good_as_truth`."""
 
 
-def around(name: str, true: float) -> np.ndarray:
-    """Parameter ``name`` at :data:`FACTORS` times ``true`` (SI), those within its range."""
-    return np.array([true * f for f in FACTORS if LOWER[name] <= true * f <= UPPER[name]])
-
-
 def truth_landscape(simulator: Simulator, datapoints: Sequence[Datapoint], truth: Parameters,
                     losses: Sequence[str], progress: TextIO | None = None) -> Landscape:
     """``losses`` (mm, mean over ``datapoints``) over :data:`PAIR` around ``truth``, the other parameters at
     the truth as level 1 holds them (frictions fixed)."""
     truth = level_truth(truth, PAIR.level)
-    return on_grid(simulator, datapoints, PAIR, truth, around(PAIR.first, getattr(truth, PAIR.first)),
-                   around(PAIR.second, getattr(truth, PAIR.second)), losses, progress)
+    return on_grid(simulator, datapoints, PAIR, truth, scan_values(PAIR.first, getattr(truth, PAIR.first)),
+                   scan_values(PAIR.second, getattr(truth, PAIR.second)), losses, progress)
 
 
 def as_good_as_truth(landscape: Landscape) -> pd.DataFrame:
@@ -78,4 +73,4 @@ def as_good_as_truth(landscape: Landscape) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(COLUMNS))
 
 
-__all__ = ["PAIR", "FACTORS", "COLUMNS", "around", "truth_landscape", "as_good_as_truth"]
+__all__ = ["PAIR", "FACTORS", "COLUMNS", "truth_landscape", "as_good_as_truth"]
