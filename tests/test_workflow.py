@@ -13,7 +13,7 @@ import yaml
 from conftest import ROOT, TINY, snakemake
 
 
-def bad_config(tmp_path, edit):
+def edited_config(tmp_path, edit):
     config = yaml.safe_load(TINY.read_text())
     edit(config)
     path = tmp_path / "bad.yaml"
@@ -28,9 +28,10 @@ def bad_config(tmp_path, edit):
     (lambda c: c["reconstruction"].update(density=-1), "density"),
     (lambda c: c["identification"].update(known={"density": 1200}), "density"),
     (lambda c: c["identification"].update(known={"rho": 5000}), "5000"),
+    (lambda c: c["analyses"]["identifiability"].update(ood_landscapes=["R3"]), "R3"),
 ])
 def test_bad_config_fails_at_start_up(tmp_path, edit, message):
-    run = snakemake(tmp_path, "-n", "tables", config=bad_config(tmp_path, edit))
+    run = snakemake(tmp_path, "-n", "tables", config=edited_config(tmp_path, edit))
     assert run.returncode != 0
     output = run.stdout + run.stderr
     assert "validating config" in output and message in output
@@ -41,14 +42,23 @@ def test_bad_config_fails_at_start_up(tmp_path, edit, message):
     ({"R0": 1, "R3": 1}, "validating config"),
 ])
 def test_ladder_iterations_per_rung_must_name_every_rung_and_only_rungs(tmp_path, iterations, message):
-    config = bad_config(tmp_path, lambda c: c["analyses"]["identifiability"].update(iterations=iterations))
+    config = edited_config(tmp_path, lambda c: c["analyses"]["identifiability"].update(iterations=iterations))
     run = snakemake(tmp_path, "-n", "tables", config=config)
     assert run.returncode != 0 and message in run.stdout + run.stderr
 
 
+def test_ood_landscapes_are_planned_on_the_flattening_datapoint_of_each_named_rung(tmp_path):
+    run = snakemake(tmp_path, "-n", "identifiability",
+                    config=edited_config(tmp_path, lambda c: c["analyses"]["identifiability"].update(ood_landscapes=["R1"])))
+    assert run.returncode == 0, (run.stdout + run.stderr)[-3000:]
+    assert "identifiability/R1/L1/ood/landscape.npz" in run.stdout
+    assert "identifiability/R1/prepared/clay-flattening-cylinder-ood-0.npz" in run.stdout
+    assert "identifiability/R0/L1/ood/landscape.npz" not in run.stdout
+
+
 def test_dataset_the_datapoints_cannot_form_fails_at_start_up(tmp_path):
     run = snakemake(tmp_path, "-n", "tables",
-                    config=bad_config(tmp_path, lambda c: c["identification"].update(datasets=["1-cylinder"])))
+                    config=edited_config(tmp_path, lambda c: c["identification"].update(datasets=["1-cylinder"])))
     assert run.returncode != 0
     assert "poking-2 with cylinder" in run.stdout + run.stderr
 
@@ -133,7 +143,7 @@ def test_snakefmt_is_clean():
 def test_changing_one_stage_parameter_reruns_only_what_depends_on_it(tiny_run, tmp_path):
     """Dry run after a finished run: a new reconstruction density touches filling and everything after
     it, not the twin, fusion, meshing or trajectories."""
-    denser = bad_config(tmp_path, lambda c: c["reconstruction"].update(density=9e6))
+    denser = edited_config(tmp_path, lambda c: c["reconstruction"].update(density=9e6))
     run = snakemake(tiny_run, "-n", "tables", "--quiet", "rules", config=denser)
     assert run.returncode == 0, run.stderr
     rerun = set(run.stdout.split())

@@ -184,7 +184,7 @@ if "identifiability" in ANALYSES:
 
     rule ladder_landscape:
         input:
-            training=lambda w: ladder_prepared(w.rung, training_ids(1, w.dataset)),
+            training=lambda w: ladder_prepared(w.rung, landscape_ids(w.dataset)),
             truth=truth_file(),
             code=code("ladder_landscape"),
         output:
@@ -198,8 +198,8 @@ if "identifiability" in ANALYSES:
         threads: 1
         resources:
             mem_mb=3000,
-            # minutes: 36 simulations per datapoint, a few seconds each on a CPU
-            runtime=lambda w: 10 + 2 * len(training_ids(1, w.dataset)),
+            # minutes: 36 simulations per datapoint, 1-5 s each on a CPU (flattening the longest)
+            runtime=lambda w: 10 + 4 * len(landscape_ids(w.dataset)),
             gpu=GPU,
         params:
             losses=LADDER["losses"],

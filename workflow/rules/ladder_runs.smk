@@ -100,6 +100,11 @@ if "identifiability" in ANALYSES:
         return list(dict.fromkeys(ids))
 
     LADDER_LANDSCAPE = f"{LADDER_ROOT}/{{rung}}/L1/{{dataset}}/landscape.npz"
+    OOD = "ood"
     LANDSCAPE_LABELS = [
         (rung, dataset) for rung in LADDER["rungs"] for dataset in LADDER["datasets"]
-    ]
+    ] + [(rung, OOD) for rung in LADDER.get("ood_landscapes", [])]
+
+    def landscape_ids(dataset):
+        """Datapoints of a ladder landscape: a dataset's level-1 training datapoints, or the OOD ones."""
+        return ood_ids() if dataset == OOD else training_ids(1, dataset)
