@@ -104,7 +104,7 @@ def test_stages_alone_match_the_composition(raw, from_views, tmp_path):
     after_points, after_mesh = reconstruct_state(mixed.after, raw.workspace, raw.table_z, "mixed after")
     np.testing.assert_array_equal(after_points, mixed.after.load())  # a fused cloud is used as it is
     dp = build_datapoint(mixed, CYLINDER, BEFORE, after_mesh, after_points, DENSITY, raw.table_z)
-    targets = after_targets(after_mesh, after_points, dp.particles, DENSITY, 0.0)
+    targets = after_targets(after_mesh, after_points, dp.particles, DENSITY, 0.0, mixed.after.measured)
     np.testing.assert_array_equal(dp.pcd_target, pcd_target(after_points))
     np.testing.assert_array_equal(dp.heightmap, targets.heightmap)
     trajectory, start = trajectory_and_start(mixed.trajectory)

@@ -58,7 +58,7 @@ def _shapes_datapoint(before: str, after: str, motion: str, effector: str, densi
     lo, hi = before_mesh.get_min_bound(), before_mesh.get_max_bound()
     table_z = float(lo[2]) if table_z is None else table_z
     particles = fill_particles(before_mesh, density, before, config)
-    targets = after_targets(after_mesh, after_points, particles, density, table_z)
+    targets = after_targets(after_mesh, after_points, particles, density, table_z, _source(after).measured)
     # checked before simulating: the validation metrics include its EMD
     if len(targets.pcd_target) > len(particles):
         raise ValueError(f"{before}: at --density {density:.3g} the object has {len(particles)} particles, fewer "

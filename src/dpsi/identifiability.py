@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from dpsi.datapoint import Datapoint
-from dpsi.heightmap import height_map, heightmap_distance_mm
+from dpsi.heightmap import heightmap_distance_mm
 from dpsi.identification import evaluate, scene, targets
 from dpsi.losses import loss_by_name, simulated_heightmap
 from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, LOWER, UPPER, Parameters, scale_free
@@ -193,6 +193,7 @@ def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: flo
     the pipeline)."""
     from dpsi.capture import Camera, capture  # open3d and pymeshlab
     from dpsi.reconstruction.filling import fill
+    from dpsi.prepare import target_heightmap
     from dpsi.reconstruction.fusion import fuse
     from dpsi.twin import TABLE_Z, WORKSPACE, true_surface
 
@@ -201,7 +202,7 @@ def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: flo
     true_after = true_surface(ground_truth.after_particles, spacing, name=f"{dp.id} true after")
 
     def cloud_distance(cloud: np.ndarray) -> float:
-        return heightmap_distance_mm(height_map(cloud, centre, floor=TABLE_Z), true_hm)
+        return heightmap_distance_mm(target_heightmap(cloud, centre, TABLE_Z, measured=True), true_hm)
 
     def recaptured(**errors) -> float:
         views = capture(true_after, TABLE_Z, seed=capture_seed, **errors)

@@ -33,7 +33,7 @@ from dpsi.motions import Trajectory, read_waypoints, resample
 from dpsi.pointclouds import View
 from dpsi.rawdata import RawDatapoint, RawDataset, StateSource
 from dpsi.reconstruction.filling import fill, pcd_target, prt_target
-from dpsi.reconstruction.fusion import fuse
+from dpsi.reconstruction.fusion import fuse, smooth_surface
 from dpsi.reconstruction.meshing import reconstruct_mesh
 
 SURFACE_SPACING = 0.001
@@ -175,14 +175,23 @@ _TRAJECTORY_ARRAYS = ("positions", "yaw", "start")
 
 
 def after_targets(after_mesh: o3d.geometry.TriangleMesh, after_points: np.ndarray, particles: np.ndarray,
-                  density: float, table_z: float) -> AfterTargets:
+                  density: float, table_z: float, measured: bool) -> AfterTargets:
     """The targets of the after state: the PRT target (particles in ``after_mesh``, at most as many as
     ``particles``, starting at ``density`` particles/m³), the PCD target (``after_points``
-    voxel-downsampled) and the height map of ``after_points`` centred on the footprint of ``particles``."""
+    voxel-downsampled) and the height map of ``after_points`` centred on the footprint of ``particles``
+    (:func:`target_heightmap`; ``measured``: the points come from cameras, not from a mesh)."""
     centre = footprint_centre(particles)
     prt, _ = prt_target(after_mesh, density, len(particles))
-    return AfterTargets(prt, pcd_target(after_points), height_map(after_points, centre, floor=table_z), centre,
-                        float(table_z))
+    return AfterTargets(prt, pcd_target(after_points), target_heightmap(after_points, centre, table_z, measured),
+                        centre, float(table_z))
+
+
+def target_heightmap(after_points: np.ndarray, centre_xy, table_z: float, measured: bool) -> np.ndarray:
+    """The height map (m) of the after state's surface points (m) around ``centre_xy``, empty cells at
+    ``table_z``. A cell holds its highest point (SPEC §3.5), so ``measured`` points (from cameras) are
+    smoothed first (:func:`~dpsi.reconstruction.fusion.smooth_surface`): their depth noise would raise every
+    cell. Points sampled on a mesh are used as they are."""
+    return height_map(smooth_surface(after_points) if measured else after_points, centre_xy, floor=table_z)
 
 
 def save_targets(path: str | os.PathLike, targets: AfterTargets) -> None:
@@ -229,7 +238,7 @@ def build_datapoint(datapoint: RawDatapoint, effector: Effector, before_mesh: o3
     ``density`` particles/m³, targets from ``after_mesh`` and the after surface points, and the
     trajectory of the raw ``datapoint``, made with ``effector``."""
     particles = fill_particles(before_mesh, density, f"{datapoint.id} before mesh")
-    targets = after_targets(after_mesh, after_points, particles, density, table_z)
+    targets = after_targets(after_mesh, after_points, particles, density, table_z, datapoint.after.measured)
     trajectory, start = trajectory_and_start(datapoint.trajectory)
     return assemble(datapoint.id, datapoint.motion, effector, particles, density, trajectory, start, targets)
 
@@ -248,5 +257,6 @@ def prepare_datapoint(dataset: RawDataset, datapoint: str | RawDatapoint, densit
 
 __all__ = ["SURFACE_SPACING", "fuse_state", "surface_points", "state_points", "state_mesh", "reconstruct_state",
            "check_extent", "check_fits", "density_holding", "fill_particles", "AfterTargets", "after_targets",
+           "target_heightmap",
            "save_targets", "load_targets", "save_trajectory", "load_trajectory", "trajectory_and_start", "assemble",
            "build_datapoint", "prepare_datapoint"]

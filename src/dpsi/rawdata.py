@@ -63,6 +63,11 @@ class StateSource:
             return read_points(self.paths[0])
         return read_closed_mesh(self.paths[0])
 
+    @property
+    def measured(self) -> bool:
+        """Whether the state's surface points come from cameras (with their depth noise), not from a mesh."""
+        return self.form != "mesh"
+
 
 @dataclass(frozen=True)
 class EffectorSpec:

@@ -125,7 +125,7 @@ def real_datapoint(shared: str | Path, name: str, density: float, seed: int = 0,
     before, after = pair_meshes(shared, name)
     pair = PAIRS[name]
     particles = fill_particles(before, density, f"real pair {name} before mesh", config)
-    targets = after_targets(after, surface_points(after), particles, density, TABLE_Z)
+    targets = after_targets(after, surface_points(after), particles, density, TABLE_Z, measured=False)
     lo, hi = before.get_min_bound(), before.get_max_bound()
     waypoints = plan(get_motion(pair.motion), seed, start_xyz=[*(lo[:2] + hi[:2]) / 2, hi[2]])
     return assemble(name, pair.motion, by_name(pair.effector), particles, density, resample(waypoints),

@@ -4,8 +4,7 @@ Steps: transform each view to the base frame, crop it to the workspace box, fit 
 known table height and level the view on it (this removes the tilt and height part of the view's
 calibration error), drop the table, register each view's object points to the other views (ICP, for the
 remaining part of the calibration error), merge the views, voxel-downsample, remove outliers and stray
-clusters, smooth the surface (each point onto the plane of its neighbours: the height map keeps each cell's
-highest point, so depth noise left in would raise every map), then close the bottom: the camera never sees it, so assuming walls meet the table at ≥ 90°,
+clusters, then close the bottom: the camera never sees it, so assuming walls meet the table at ≥ 90°,
 the footprint's boundary points are extended straight down to the table and the footprint is covered
 with table-height points.
 """
@@ -101,9 +100,9 @@ def register_views(clouds: list[np.ndarray], max_distance: float = 0.006, normal
 
 
 SMOOTHING_NEIGHBOURS = 30
-"""Points (itself included) whose least-squares plane each fused point is projected onto. Depth noise of
-σ = 0.5 mm left in the cloud raised a flat top's height map by 0.7 mm (the highest of a cell's points);
-with 30 neighbours the excess is 0.06 mm (docs/identifiability.md)."""
+"""Points (itself included) whose least-squares plane :func:`smooth_surface` projects each point onto. The
+cameras' depth noise (σ = 0.5 mm) raised the height map of a fused flat top by 0.7 mm, since a cell keeps
+its highest point; smoothed with 30 neighbours, by 0.06 mm (docs/identifiability.md)."""
 
 
 def smooth_surface(points: np.ndarray, neighbours: int = SMOOTHING_NEIGHBOURS) -> np.ndarray:
@@ -165,14 +164,14 @@ def close_bottom(points: np.ndarray, table_z: float, spacing: float) -> np.ndarr
 
 def fuse(views: Sequence[View], lo, hi, table_z: float = 0.0, voxel: float = 0.001,
          table_margin: float = 0.002, outlier_neighbours: int = 20, outlier_std: float = 2.0,
-         register: bool = True, close: bool = True, smoothing: int = SMOOTHING_NEIGHBOURS) -> np.ndarray:
+         register: bool = True, close: bool = True) -> np.ndarray:
     """Fused object cloud (n, 3) in m from camera ``views`` (SPEC §3.1).
 
     ``lo``, ``hi``: corners of the workspace box (m, base frame); ``table_z``: known table height (m);
     ``voxel``: downsampling voxel (m), also the spacing of the added bottom points; ``table_margin``:
     points less than this (m) above the levelled table are removed as table. ``register``: align the
     views by ICP (:func:`register_views`). With ``close=False`` the bottom is not added (the visible
-    surface only). ``smoothing``: neighbours of :func:`smooth_surface` (0: the points as merged). Raises ``ValueError`` if a view is unusable or
+    surface only). Raises ``ValueError`` if a view is unusable or
     nothing of the object remains."""
     if len(views) == 0:
         raise ValueError("fusion: no views given")
@@ -192,8 +191,6 @@ def fuse(views: Sequence[View], lo, hi, table_z: float = 0.0, voxel: float = 0.0
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(voxel_downsample(merged, voxel)))
     cloud, _ = cloud.remove_statistical_outlier(outlier_neighbours, outlier_std)
     points = largest_cluster(np.asarray(cloud.points), eps=4 * voxel)
-    if smoothing:
-        points = smooth_surface(points, smoothing)
     return close_bottom(points, table_z, voxel) if close else points
 
 
