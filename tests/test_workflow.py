@@ -16,7 +16,7 @@ from conftest import ROOT, TINY, snakemake
 def edited_config(tmp_path, edit):
     config = yaml.safe_load(TINY.read_text())
     edit(config)
-    path = tmp_path / "bad.yaml"
+    path = tmp_path / "config.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
 

@@ -192,8 +192,8 @@ def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: flo
     and from the reconstructed before particles (``reconstructed``: adds the before shape's reconstruction;
     the pipeline)."""
     from dpsi.capture import Camera, capture  # open3d and pymeshlab
-    from dpsi.reconstruction.filling import fill
     from dpsi.prepare import target_heightmap
+    from dpsi.reconstruction.filling import fill
     from dpsi.reconstruction.fusion import fuse
     from dpsi.twin import TABLE_Z, WORKSPACE, true_surface
 
