@@ -177,16 +177,17 @@ def scan_values(name: str, true: float) -> np.ndarray:
 
 
 def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: float, after_cloud: np.ndarray,
-                 capture_seed: int = 0) -> dict[str, float]:
+                 capture_seed: int = 0, measured: bool = True) -> dict[str, float]:
     """Where the distance between simulation and truth comes from, for one twin datapoint ``dp`` prepared by
     the main pipeline, its fused after cloud ``after_cloud`` (n, 3) in m and its twin ``ground_truth``
     (:class:`dpsi.twin.GroundTruth`): height-map distances (mm) to the twin's true after surface, every map
     drawn on the truth's grid.
 
-    The target's part: the captured, fused after cloud (``target``), and the true after surface captured
-    again by the twin's cameras (seed ``capture_seed``) and fused, without calibration error
+    The target's part: the captured, fused after cloud (``target``; ``measured``: it comes from cameras, so its
+    map is drawn as the targets stage draws it, :func:`dpsi.prepare.target_heightmap`), and the true after
+    surface captured again by the twin's cameras (seed ``capture_seed``) and fused, without calibration error
     (``target_no_calibration_error``) and also without depth noise (``target_exact_cameras``: what the
-    cameras' sampling and the fusion leave). The simulation's part, at the truth on this ``simulator``:
+    cameras' sampling, the fusion and the smoothing leave). The simulation's part, at the truth on this ``simulator``:
     started from the twin's own particles (``twin_particles``: the simulator's resolution alone), from the
     true before shape filled at ``density`` particles/m³ (``true_shape_filled``: adds the particle density),
     and from the reconstructed before particles (``reconstructed``: adds the before shape's reconstruction;
@@ -201,12 +202,12 @@ def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: flo
     spacing = ground_truth.particle_volume ** (1 / 3)
     true_after = true_surface(ground_truth.after_particles, spacing, name=f"{dp.id} true after")
 
-    def cloud_distance(cloud: np.ndarray) -> float:
-        return heightmap_distance_mm(target_heightmap(cloud, centre, TABLE_Z, measured=True), true_hm)
+    def cloud_distance(cloud: np.ndarray, from_cameras: bool) -> float:
+        return heightmap_distance_mm(target_heightmap(cloud, centre, TABLE_Z, from_cameras), true_hm)
 
     def recaptured(**errors) -> float:
         views = capture(true_after, TABLE_Z, seed=capture_seed, **errors)
-        return cloud_distance(fuse(views, *WORKSPACE, table_z=TABLE_Z))
+        return cloud_distance(fuse(views, *WORKSPACE, table_z=TABLE_Z), True)
 
     def simulated(particles: np.ndarray, volume: float) -> float:
         final = simulator.forward(dataclasses.replace(scene(dp), particles=particles, particle_volume=volume),
@@ -216,7 +217,7 @@ def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: flo
 
     exact = {"translation_error": 0.0, "rotation_error": 0.0}
     true_shape = true_surface(ground_truth.before_particles, spacing, name=f"{dp.id} true before")
-    return {"target": cloud_distance(after_cloud),
+    return {"target": cloud_distance(after_cloud, measured),
             "target_no_calibration_error": recaptured(**exact),
             "target_exact_cameras": recaptured(**exact, camera=Camera(depth_noise=0.0)),
             "twin_particles": simulated(ground_truth.before_particles, ground_truth.particle_volume),
