@@ -4,8 +4,8 @@ truth does, on a made-up landscape, on R0 of the tiny poked block, and drawn."""
 import numpy as np
 import pytest
 
-from dpsi.identifiability import scan_values
-from dpsi.identifiability_landscape import COLUMNS, FACTORS, PAIR, as_good_as_truth, truth_landscape
+from dpsi.identifiability import SCAN_FACTORS, scan_values
+from dpsi.identifiability_landscape import COLUMNS, PAIR, as_good_as_truth, truth_landscape
 from dpsi.landscapes import Landscape, fixed_cell
 from dpsi.parameters import LEVEL1_FIXED
 from dpsi.reporting.landscapes import plot_truth_landscapes
@@ -32,7 +32,7 @@ def test_the_cells_as_good_as_the_truth_reach_as_far_as_the_better_cell():
     assert (s.as_good_from, s.as_good_to) == pytest.approx((1.0, 1.4))
     assert e["argmin"] == pytest.approx(2 * TRUTH.E) and s["argmin"] == pytest.approx(1.4 * TRUTH.yield_stress)
     assert e.loss_at_truth_mm == pytest.approx(1.0) and e.loss_min_mm == pytest.approx(0.9)
-    assert e.as_good_cells == 2 and e.cells == len(FACTORS) ** 2 - 1
+    assert e.as_good_cells == 2 and e.cells == len(SCAN_FACTORS) ** 2 - 1
     strain = table.loc[("prt_cd", "yield_stress/E")]  # the better cell's yield strain is 0.7 × the truth's
     assert (strain.as_good_from, strain.as_good_to) == pytest.approx((0.7, 1.0))
     assert strain.truth == pytest.approx(TRUTH.yield_stress / TRUTH.E)
@@ -44,14 +44,14 @@ def test_a_landscape_without_the_truth_on_its_grid_is_refused():
     with pytest.raises(ValueError, match="E axis does not hold"):
         as_good_as_truth(Landscape(PAIR, landscape.losses, landscape.first * 1.01, landscape.second,
                                    landscape.values, TRUTH))
-    assert fixed_cell(landscape) == (FACTORS.index(1.0), FACTORS.index(1.0))
+    assert fixed_cell(landscape) == (SCAN_FACTORS.index(1.0), SCAN_FACTORS.index(1.0))
 
 
 def test_on_rung_0_only_the_truth_fits_as_well_as_the_truth(rung0):
     simulator, training, _ = rung0
     landscape = truth_landscape(simulator, training[:1], TRUTH, ["prt_cd", "heightmap_interior"])
     assert landscape.fixed == TRUTH.replace(**LEVEL1_FIXED)
-    np.testing.assert_allclose(landscape.first / TRUTH.E, FACTORS)
+    np.testing.assert_allclose(landscape.first / TRUTH.E, SCAN_FACTORS)
     assert np.isfinite(landscape.values).all()
     table = as_good_as_truth(landscape)
     assert len(table) == 2 * 3 and (table.loss_at_truth_mm < 1e-9).all() and (table.as_good_cells == 1).all()

@@ -2,7 +2,7 @@
 training datapoints, and the region of parameters the data cannot tell from the truth.
 
 On the twin the truth θ* is known, so a landscape answers what no identification run can: which parameters
-the data determine. The grid holds E and σ_y at :data:`FACTORS` times the truth (within their ranges), ν, ρ
+the data determine. The grid holds E and σ_y at :data:`~dpsi.identifiability.SCAN_FACTORS` times the truth (within their ranges), ν, ρ
 and the frictions at the truth. A cell whose loss is no higher than the loss at θ* fits the data at least
 as well as the truth does, so no optimiser has a reason to prefer θ* to it. How far those cells reach along
 a parameter is how well the data determine it: at R0 the truth alone (every loss is zero there and only
@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from dpsi.datapoint import Datapoint
-from dpsi.identifiability import SCAN_FACTORS, level_truth, scan_values
+from dpsi.identifiability import level_truth, scan_values
 from dpsi.landscape_compute import on_grid
 from dpsi.landscapes import Landscape, Pair, fixed_cell
 from dpsi.parameters import Parameters
@@ -26,9 +26,6 @@ from dpsi.simulation import Simulator
 
 PAIR = Pair("E", "yield_stress", 1)
 """The parameters on the axes: the two whose recovery the ladder's targets name, at level 1."""
-
-FACTORS = SCAN_FACTORS
-"""Multiples of the truth on each axis (those of the one-parameter scans)."""
 
 COLUMNS = ("loss", "parameter", "truth", "argmin", "loss_at_truth_mm", "loss_min_mm", "as_good_from",
            "as_good_to", "as_good_cells", "cells")
@@ -73,4 +70,4 @@ def as_good_as_truth(landscape: Landscape) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(COLUMNS))
 
 
-__all__ = ["PAIR", "FACTORS", "COLUMNS", "truth_landscape", "as_good_as_truth"]
+__all__ = ["PAIR", "COLUMNS", "truth_landscape", "as_good_as_truth"]

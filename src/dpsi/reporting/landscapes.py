@@ -6,7 +6,7 @@ each map minus its loss at the truth: blue fits the data better than the truth."
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from matplotlib import colormaps
@@ -107,9 +107,10 @@ def _heat_map(fig, ax, landscape: Landscape, k: int, truth: bool = False) -> Non
 
 
 def _plot(columns: Sequence[tuple[str, Landscape]], png_path: str | Path, pdf_path: str | Path, truth: bool,
-          title: str) -> None:
+          title: Callable[[Landscape], str]) -> None:
     """Heat maps of ``columns`` ((label, landscape) per column, the losses in rows; see :func:`_heat_map` for
-    ``truth``) under ``title`` + the other parameters' values, written to ``png_path`` and ``pdf_path``."""
+    ``truth``) under ``title`` (of the first landscape) + the other parameters' values, written to
+    ``png_path`` and ``pdf_path``."""
     first = _check(columns)
     n_rows, n_cols = len(first.losses), len(columns)
     fig = new_figure(max(4.2 * n_cols, 6.5), 3.3 * n_rows + 0.8)
@@ -119,7 +120,7 @@ def _plot(columns: Sequence[tuple[str, Landscape]], png_path: str | Path, pdf_pa
             _heat_map(fig, axes[k, col], landscape, k, truth)
             axes[k, col].set_title(f"{LOSS_LABELS[loss]}, {label}", fontsize="medium")
     axes[0, 0].legend(loc="lower left", fontsize="small", framealpha=0.8)
-    fig.suptitle(f"{title}\nother parameters: {_fixed_text(first)}", fontsize="medium")
+    fig.suptitle(f"{title(first)}\nother parameters: {_fixed_text(first)}", fontsize="medium")
     save(fig, png_path, pdf_path)
 
 
@@ -131,9 +132,8 @@ def _symbols(landscape: Landscape) -> str:
 def plot_landscapes(columns: Sequence[tuple[str, Landscape]], png_path: str | Path, pdf_path: str | Path) -> None:
     """One figure of the landscapes of one pair: ``columns`` is (dataset name, landscape) per column, rows
     are the losses, each map centralised; written to ``png_path`` and ``pdf_path``."""
-    first = _check(columns)
-    _plot(columns, png_path, pdf_path, False, f"Loss landscapes over ({_symbols(first)}) on level-{first.pair.level} "
-                                             "datasets, centralised to zero mean")
+    _plot(columns, png_path, pdf_path, False, lambda first: f"Loss landscapes over ({_symbols(first)}) on "
+                                                            f"level-{first.pair.level} datasets, centralised to zero mean")
 
 
 def plot_truth_landscapes(columns: Sequence[tuple[str, Landscape]], png_path: str | Path,
@@ -142,8 +142,9 @@ def plot_truth_landscapes(columns: Sequence[tuple[str, Landscape]], png_path: st
     ``columns`` is (rung, landscape) per column, rows are the losses, each map minus its loss at the truth
     (blue cells fit the data better than the truth; the dashed line is where a cell fits them as well);
     written to ``png_path`` and ``pdf_path``."""
-    _plot(columns, png_path, pdf_path, True, f"Losses over ({_symbols(_check(columns))}) around the truth, minus "
-                                            "the loss at the truth: blue fits the data better than the truth")
+    _plot(columns, png_path, pdf_path, True, lambda first: f"Losses over ({_symbols(first)}) around the truth, "
+                                                           "minus the loss at the truth: blue fits the data better "
+                                                           "than the truth")
 
 
 __all__ = ["LOSS_LABELS", "COLOUR_MAP", "centred", "plot_landscapes", "plot_truth_landscapes"]
