@@ -17,6 +17,7 @@ from dpsi.identification import identify, scene
 from dpsi.losses import simulated_heightmap
 from dpsi.parameters import IDENTIFIED, SCALE_FREE
 from dpsi.prepare import surface_points
+from dpsi.reporting import figures
 from dpsi.simulation import Simulator
 from dpsi.twin import CENTRE, GroundTruth, true_surface
 from test_identification import CONFIG, SPACING, TRUTH, block, poke
@@ -120,8 +121,8 @@ def test_bias_sources_draw_every_map_on_the_truth_s_grid():
     assert 0.0 < sources["target_exact_cameras"] < 0.6 * unmoved
 
 
-def fake_run(seed, estimate, loss_at_best, known=()):
-    labels = dict(rung="R0", level=1, loss="prt_emd", dataset="1-round", seed=seed)
+def fake_run(seed, estimate, loss_at_best, known=(), rung="R0", dataset="1-round"):
+    labels = dict(rung=rung, level=1, loss="prt_emd", dataset=dataset, seed=seed)
     summary = {**labels, "known": sorted(known),
                "best": {"iteration": 2, "parameters": estimate, "validation": {"heightmap_mm": 100.0}}}
     log = pd.DataFrame({"iteration": [0, 1, 2], "train_loss_mm": [900.0, 500.0, loss_at_best]}).assign(**labels)
@@ -144,7 +145,27 @@ def test_ladder_table_has_a_row_per_identified_parameter_with_relative_errors():
     ratios = table[table.seed == 0].set_index("parameter").rel_error
     assert ratios["E/rho"] == pytest.approx(0.1) and ratios["yield_stress/E"] == pytest.approx(1 - 1 / 1.1)
     assert (table.loc[~table.parameter.isin(["E", *SCALE_FREE]), "rel_error"] == 0).all()
-    assert recovery_summary(table).loc[("R0", 1, "prt_emd"), "E"] == pytest.approx(0.15)
+    assert recovery_summary(table).loc[("R0", 1, "1-round", "prt_emd"), "E"] == pytest.approx(0.15)
+
+
+def test_the_recovery_figure_draws_each_dataset_of_each_rung_in_a_panel_of_its_own(tmp_path, monkeypatch):
+    truth = TRUTH.as_dict()
+    ref = {"truth": truth, "loss_at_truth_mm": {"prt_emd": 0.0}, "val_heightmap_hand_picked_mm": 300.0,
+           "val_heightmap_no_motion_mm": 900.0}
+    e_factor = {("R0", "1-round"): 1.05, ("R2", "1-round"): 1.3, ("R2", "ood"): 1.1}
+    runs = [fake_run(0, {**truth, "E": truth["E"] * f}, 40.0, rung=r, dataset=d) for (r, d), f in e_factor.items()]
+    table = ladder_table([s for s, _ in runs], pd.concat([log for _, log in runs]),
+                         {(r, 1, d): ref for r, d in e_factor})
+    drawn = {}
+    monkeypatch.setattr(figures, "save", lambda fig, png, pdf: drawn.update(fig=fig))
+    figures.plot_recovery(table, tmp_path / "f.png", tmp_path / "f.pdf")
+    panels = {ax.get_title(): ax for ax in drawn["fig"].axes if ax.get_title()}
+    shown = {title for title, ax in panels.items() if ax.axison}
+    assert shown == {"level 1, 1-round, R0", "level 1, 1-round, R2", "level 1, ood, R2"}
+    assert not panels["level 1, ood, R0"].axison
+    for (rung, dataset), factor in e_factor.items():
+        bars = panels[f"level 1, {dataset}, {rung}"].patches
+        assert bars[0].get_height() == pytest.approx(100 * (factor - 1))  # E, the first parameter
 
 
 def test_a_parameter_held_known_gets_no_row_but_its_value_enters_the_ratios():

@@ -29,6 +29,8 @@ def edited_config(tmp_path, edit):
     (lambda c: c["identification"].update(known={"density": 1200}), "density"),
     (lambda c: c["identification"].update(known={"rho": 5000}), "5000"),
     (lambda c: c["analyses"]["identifiability"].update(ood_landscapes=["R3"]), "R3"),
+    (lambda c: c["analyses"]["identifiability"].update(ood_runs={"rungs": ["R2"], "losses": ["prt_chamfer"]}),
+     "prt_chamfer"),
 ])
 def test_bad_config_fails_at_start_up(tmp_path, edit, message):
     run = snakemake(tmp_path, "-n", "tables", config=edited_config(tmp_path, edit))
@@ -37,12 +39,13 @@ def test_bad_config_fails_at_start_up(tmp_path, edit, message):
     assert "validating config" in output and message in output
 
 
-@pytest.mark.parametrize("iterations, message", [
-    ({"R0": 1}, "gives no number for rung R1"),
-    ({"R0": 1, "R3": 1}, "validating config"),
+@pytest.mark.parametrize("edit, message", [
+    ({"iterations": {"R0": 1}}, "gives no number for rung R1"),
+    ({"iterations": {"R0": 1, "R3": 1}}, "validating config"),
+    ({"ood_runs": {"rungs": ["R2"], "losses": ["prt_cd"]}}, "gives no number for rung R2"),
 ])
-def test_ladder_iterations_per_rung_must_name_every_rung_and_only_rungs(tmp_path, iterations, message):
-    config = edited_config(tmp_path, lambda c: c["analyses"]["identifiability"].update(iterations=iterations))
+def test_ladder_iterations_per_rung_must_name_every_rung_and_only_rungs(tmp_path, edit, message):
+    config = edited_config(tmp_path, lambda c: c["analyses"]["identifiability"].update(edit))
     run = snakemake(tmp_path, "-n", "tables", config=config)
     assert run.returncode != 0 and message in run.stdout + run.stderr
 
@@ -54,6 +57,23 @@ def test_ood_landscapes_are_planned_on_the_flattening_datapoint_of_each_named_ru
     assert "identifiability/R1/L1/ood/landscape.npz" in run.stdout
     assert "identifiability/R1/prepared/clay-flattening-cylinder-ood-0.npz" in run.stdout
     assert "identifiability/R0/L1/ood/landscape.npz" not in run.stdout
+
+
+def test_ood_runs_train_and_validate_on_the_flattening_datapoint_at_each_named_rung(tmp_path):
+    edit = {"ood_runs": {"rungs": ["R2"], "losses": ["heightmap_interior"]}, "iterations": 1}
+    run = snakemake(tmp_path, "-n", "identifiability",
+                    config=edited_config(tmp_path, lambda c: c["analyses"]["identifiability"].update(edit)))
+    output = run.stdout + run.stderr
+    assert run.returncode == 0, output[-3000:]
+    run_folder = "identifiability/R2/L1/heightmap_interior/ood/seed0"
+    assert f"{run_folder}/summary.json" in output
+    assert "identifiability/R2/L1/ood/reference.json" in output
+    assert "identifiability/R1/L1/heightmap_interior/ood/" not in output
+    assert "identifiability/R2/L1/prt_emd/ood/" not in output
+    job = output[output.index(f"{run_folder}/summary.json") - 2000:output.index(f"{run_folder}/summary.json")]
+    job_inputs = job[job.rindex("input:"):]
+    assert "prepared/clay-flattening-cylinder-ood-0.npz" in job_inputs
+    assert "validation-0.npz" not in job_inputs
 
 
 def test_dataset_the_datapoints_cannot_form_fails_at_start_up(tmp_path):

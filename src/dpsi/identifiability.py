@@ -161,9 +161,9 @@ def ladder_table(summaries: Sequence[dict], logs: pd.DataFrame, references: Mapp
 
 
 def recovery_summary(table: pd.DataFrame) -> pd.DataFrame:
-    """Median relative error per (rung, level, loss) and parameter over datasets and seeds (the ladder at a
+    """Median relative error per (rung, level, dataset, loss) and parameter over seeds (the ladder at a
     glance, for a notebook or the README)."""
-    return table.groupby(["rung", "level", "loss", "parameter"])["rel_error"].median().unstack("parameter")
+    return table.groupby(["rung", "level", "dataset", "loss", "parameter"])["rel_error"].median().unstack("parameter")
 
 
 SCAN_PARAMETERS = ("E", "yield_stress")

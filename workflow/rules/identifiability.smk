@@ -60,8 +60,12 @@ if "identifiability" in ANALYSES:
 
     use rule identify as identify_ladder with:
         input:
-            training=lambda w: ladder_prepared(w.rung, training_ids(w.level, w.dataset)),
-            validation=lambda w: ladder_prepared(w.rung, validation_ids(w.level)),
+            training=lambda w: ladder_prepared(
+                w.rung, ladder_training_ids(w.level, w.dataset)
+            ),
+            validation=lambda w: ladder_prepared(
+                w.rung, ladder_validation_ids(w.level, w.dataset)
+            ),
             truth=truth_file(),
             code=code("identify"),
         output:
@@ -104,8 +108,12 @@ if "identifiability" in ANALYSES:
 
     rule ladder_reference:
         input:
-            training=lambda w: ladder_prepared(w.rung, training_ids(w.level, w.dataset)),
-            validation=lambda w: ladder_prepared(w.rung, validation_ids(w.level)),
+            training=lambda w: ladder_prepared(
+                w.rung, ladder_training_ids(w.level, w.dataset)
+            ),
+            validation=lambda w: ladder_prepared(
+                w.rung, ladder_validation_ids(w.level, w.dataset)
+            ),
             truth=truth_file(),
             code=code("ladder_reference"),
         output:
@@ -128,13 +136,9 @@ if "identifiability" in ANALYSES:
 
     rule identifiability_results:
         input:
-            summaries=lambda w: run_files(
-                ladder_runs(*LADDER_TABLES[w.ladder]), "summary.json"
-            ),
-            logs=lambda w: run_files(ladder_runs(*LADDER_TABLES[w.ladder]), "log.csv"),
-            references=lambda w: ladder_references(
-                ladder_runs(*LADDER_TABLES[w.ladder])
-            ),
+            summaries=lambda w: run_files(LADDER_TABLES[w.ladder], "summary.json"),
+            logs=lambda w: run_files(LADDER_TABLES[w.ladder], "log.csv"),
+            references=lambda w: ladder_references(LADDER_TABLES[w.ladder]),
             code=code("identifiability"),
         output:
             table=table_files("{ladder}", "../report/identifiability.rst"),
@@ -152,7 +156,7 @@ if "identifiability" in ANALYSES:
         params:
             references=lambda w: {
                 LADDER_REFERENCE.format(**labels): labels
-                for labels in ladder_runs(*LADDER_TABLES[w.ladder]).values()
+                for labels in LADDER_TABLES[w.ladder].values()
             },
         script:
             "../scripts/identifiability.py"
@@ -184,7 +188,9 @@ if "identifiability" in ANALYSES:
 
     rule ladder_landscape:
         input:
-            training=lambda w: ladder_prepared(w.rung, landscape_ids(w.dataset)),
+            training=lambda w: ladder_prepared(
+                w.rung, ladder_training_ids(1, w.dataset)
+            ),
             truth=truth_file(),
             code=code("ladder_landscape"),
         output:
@@ -199,7 +205,7 @@ if "identifiability" in ANALYSES:
         resources:
             mem_mb=3000,
             # minutes: 36 simulations per datapoint, 1-5 s each on a CPU (flattening the longest)
-            runtime=lambda w: 10 + 4 * len(landscape_ids(w.dataset)),
+            runtime=lambda w: 10 + 4 * len(ladder_training_ids(1, w.dataset)),
             gpu=GPU,
         params:
             losses=LADDER["losses"],

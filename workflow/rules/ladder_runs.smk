@@ -45,21 +45,36 @@ if "identifiability" in ANALYSES:
             return prepared(ids)
         return [f"{LADDER_ROOT}/{rung}/prepared/{i}.npz" for i in ids]
 
-    for rung in LADDER["rungs"]:
-        ladder_iterations(rung)  # fails at start-up if a per-rung mapping misses a rung
+    OOD_DATASET = "ood"
+    """The ladder's name for the twin's out-of-distribution clay datapoints (the long motions) as a dataset."""
 
-    def ladder_runs(rungs, losses):
-        """Folder → labels of every ladder run on `rungs` with `losses`."""
+    def ladder_training_ids(level, dataset):
+        """Training datapoints of a ladder dataset: a named dataset's, or the OOD datapoints."""
+        if dataset == OOD_DATASET:
+            return ood_ids()
+        return training_ids(level, dataset)
+
+    def ladder_validation_ids(level, dataset):
+        """Validation datapoints of a ladder dataset. The OOD datapoints are the only ones of their
+        motions, so a run on them is validated on them (its estimate: where it fits them best).
+        """
+        if dataset == OOD_DATASET:
+            return ood_ids()
+        return validation_ids(level)
+
+    def ladder_runs(rungs, losses, datasets):
+        """Folder → labels of every ladder run on `rungs` with `losses` and `datasets`."""
         runs = {}
         for rung, level, loss, dataset, seed in itertools.product(
             rungs,
             LADDER["levels"],
             losses,
-            LADDER["datasets"],
+            datasets,
             LADDER["seeds"],
         ):
             try:
-                training_ids(level, dataset), validation_ids(level)
+                ladder_training_ids(level, dataset)
+                ladder_validation_ids(level, dataset)
             except ValueError as err:
                 raise WorkflowError(f"analysis identifiability: {err}")
             labels = dict(rung=rung, level=level, loss=loss, dataset=dataset, seed=seed)
@@ -69,17 +84,29 @@ if "identifiability" in ANALYSES:
     def ladder_references(runs):
         return sorted({LADDER_REFERENCE.format(**labels) for labels in runs.values()})
 
-    LADDER_TABLES = {"identifiability": (LADDER["rungs"], LADDER["losses"])}
-    IN_TABLES = {
-        "rungs": LADDER["rungs"],
-        "losses": LADDER["losses"],
-        **LADDER.get("in_tables", {}),
+    OOD_RUNS = LADDER.get("ood_runs", {"rungs": [], "losses": []})
+    for rung in {*LADDER["rungs"], *OOD_RUNS["rungs"]}:
+        ladder_iterations(rung)  # fails at start-up if a per-rung mapping misses a rung
+    LADDER_TABLES = {
+        "identifiability": {
+            **ladder_runs(LADDER["rungs"], LADDER["losses"], LADDER["datasets"]),
+            **ladder_runs(OOD_RUNS["rungs"], OOD_RUNS["losses"], [OOD_DATASET]),
+        }
     }
-    if (IN_TABLES["rungs"], IN_TABLES["losses"]) != LADDER_TABLES["identifiability"]:
-        LADDER_TABLES["identifiability_" + "-".join(IN_TABLES["rungs"])] = (
-            IN_TABLES["rungs"],
-            IN_TABLES["losses"],
+    """Name of each ladder table → its runs (folder → labels)."""
+    if "in_tables" in LADDER:
+        in_tables = {
+            "rungs": LADDER["rungs"],
+            "losses": LADDER["losses"],
+            **LADDER["in_tables"],
+        }
+        in_table_runs = ladder_runs(
+            in_tables["rungs"], in_tables["losses"], LADDER["datasets"]
         )
+        if in_table_runs != LADDER_TABLES["identifiability"]:
+            LADDER_TABLES["identifiability_" + "-".join(in_tables["rungs"])] = (
+                in_table_runs
+            )
 
     def ladder_outputs(name):
         return table_files(name, "../report/identifiability.rst") + figure_files(
@@ -100,11 +127,6 @@ if "identifiability" in ANALYSES:
         return list(dict.fromkeys(ids))
 
     LADDER_LANDSCAPE = f"{LADDER_ROOT}/{{rung}}/L1/{{dataset}}/landscape.npz"
-    OOD = "ood"
     LANDSCAPE_LABELS = [
         (rung, dataset) for rung in LADDER["rungs"] for dataset in LADDER["datasets"]
-    ] + [(rung, OOD) for rung in LADDER.get("ood_landscapes", [])]
-
-    def landscape_ids(dataset):
-        """Datapoints of a ladder landscape: a dataset's level-1 training datapoints, or the OOD ones."""
-        return ood_ids() if dataset == OOD else training_ids(1, dataset)
+    ] + [(rung, OOD_DATASET) for rung in LADDER.get("ood_landscapes", [])]

@@ -211,33 +211,39 @@ def plot_particles(datapoint: Datapoint, final_particles, png_path: str | Path, 
 
 def plot_recovery(table: pd.DataFrame, png_path: str | Path, pdf_path: str | Path) -> None:
     """Identifiability ladder figure: relative error (%) of each identified parameter, one panel per
-    (level, rung), bars per loss (median over datasets and seeds) and a dot per run. ``table`` has the
-    columns of :data:`dpsi.identifiability.COLUMNS`."""
-    missing = [c for c in ("rung", "level", "loss", "parameter", "rel_error") if c not in table.columns]
+    (level, dataset) row and rung column, bars per loss (median over seeds) and a dot per run. ``table`` has
+    the columns of :data:`dpsi.identifiability.COLUMNS`."""
+    missing = [c for c in ("rung", "level", "dataset", "loss", "parameter", "rel_error") if c not in table.columns]
     if missing or table.empty:
         raise ValueError(f"ladder table is empty or lacks column(s) {missing}: nothing to plot")
-    panels = sorted(set(zip(table["level"], table["rung"])))
+    rows = list(dict.fromkeys(zip(table["level"], table["dataset"])))
+    rungs = sorted(set(table["rung"]))
     losses = list(dict.fromkeys(table["loss"]))
-    fig = new_figure(4.2 * len(panels), 3.4)
-    axes = np.atleast_1d(fig.subplots(1, len(panels), sharey=True))
+    fig = new_figure(4.2 * len(rungs), 3.4 * len(rows))
+    axes = np.array(fig.subplots(len(rows), len(rungs), sharey=True, squeeze=False))
     width = 0.8 / len(losses)
-    for ax, (level, rung) in zip(axes, panels):
-        rows = table[(table["level"] == level) & (table["rung"] == rung)]
-        names = [n for n in (*IDENTIFIED[level], *SCALE_FREE) if n in set(rows["parameter"])]
-        for k, loss in enumerate(losses):
-            mine = rows[rows["loss"] == loss]
-            x = np.arange(len(names)) + (k - (len(losses) - 1) / 2) * width
-            errors = [100 * mine.loc[mine["parameter"] == n, "rel_error"] for n in names]
-            ax.bar(x, [e.median() if len(e) else np.nan for e in errors], width, label=loss, color=f"C{k}")
-            for xi, e in zip(x, errors):
-                ax.plot(np.full(len(e), xi), e, "k.", markersize=3)
-        ax.set_xticks(np.arange(len(names)), [PARAMETER_AXES[n][0].split(" (")[0] if n in PARAMETER_AXES else n
-                                              for n in names], fontsize=7)
-        ax.set_yscale("symlog", linthresh=10)
-        ax.axhline(10, color="grey", lw=0.8, ls="--")
-        ax.set_title(f"level {level}, {rung}")
-    axes[0].set_ylabel("relative error (%)")
-    axes[-1].legend(fontsize=7)
+    for (level, dataset), row_axes in zip(rows, axes):
+        for ax, rung in zip(row_axes, rungs):
+            panel = table[(table["level"] == level) & (table["dataset"] == dataset) & (table["rung"] == rung)]
+            ax.set_title(f"level {level}, {dataset}, {rung}", fontsize=9)
+            if panel.empty:
+                ax.set_axis_off()
+                continue
+            names = [n for n in (*IDENTIFIED[level], *SCALE_FREE) if n in set(panel["parameter"])]
+            for k, loss in enumerate(losses):
+                mine = panel[panel["loss"] == loss]
+                x = np.arange(len(names)) + (k - (len(losses) - 1) / 2) * width
+                errors = [100 * mine.loc[mine["parameter"] == n, "rel_error"] for n in names]
+                ax.bar(x, [e.median() if len(e) else np.nan for e in errors], width, label=loss, color=f"C{k}")
+                for xi, e in zip(x, errors):
+                    ax.plot(np.full(len(e), xi), e, "k.", markersize=3)
+            ax.set_xticks(np.arange(len(names)), [PARAMETER_AXES[n][0].split(" (")[0] if n in PARAMETER_AXES else n
+                                                  for n in names], fontsize=7)
+            ax.set_yscale("symlog", linthresh=10)
+            ax.axhline(10, color="grey", lw=0.8, ls="--")
+            ax.set_ylabel("relative error (%)")
+    handles = {label: h for ax in axes.flat for h, label in zip(*ax.get_legend_handles_labels())}
+    fig.legend(handles.values(), handles.keys(), fontsize=7, loc="outside lower center", ncols=len(handles))
     fig.suptitle("Identifiability ladder: recovery error per parameter (dashed: 10 %)")
     save(fig, png_path, pdf_path)
 
