@@ -106,6 +106,25 @@ class Interrupt(io.StringIO):
         return super().write(text)
 
 
+def test_a_validation_datapoint_that_is_a_training_one_is_not_simulated_again(simulator, problem, tmp_path,
+                                                                             monkeypatch):
+    training = problem[0]
+    forwards = []
+    simulate = simulator.forward
+    monkeypatch.setattr(simulator, "forward", lambda *args, **kwargs: forwards.append(1) or simulate(*args, **kwargs))
+    run = dict(level=1, loss="prt_cd", iterations=1, initial=HAND_PICKED, simulator=simulator, progress=io.StringIO())
+    identify(tmp_path / "same", training=training, validation_set=training, **run)
+    assert len(forwards) == 2 * len(training)  # rows 0 and 1: one simulation per datapoint each
+    forwards.clear()
+    copies = [dataclasses.replace(dp) for dp in training]
+    identify(tmp_path / "copies", training=training, validation_set=copies, **run)
+    assert len(forwards) == 4 * len(training)
+    same, separate = (pd.read_csv(tmp_path / name / LOG_FILE) for name in ("same", "copies"))
+    metrics = [c for c in COLUMNS if c.startswith("val_") and c != "val_skipped"]
+    assert np.allclose(same[metrics], separate[metrics], rtol=1e-12, atol=0)
+    assert same.val_heightmap_mm.gt(0).all()
+
+
 def _without_wall_time(folder):
     return [{k: v for k, v in row.items() if k != "wall_s"}
             for row in json.loads((folder / STATE_FILE).read_text())["log"]]

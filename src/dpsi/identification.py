@@ -31,7 +31,7 @@ import math
 import time
 from pathlib import Path
 from collections.abc import Mapping
-from typing import Sequence, TextIO
+from typing import NamedTuple, Sequence, TextIO
 
 import numpy as np
 import pandas as pd
@@ -73,10 +73,13 @@ def targets(dp: Datapoint) -> Targets:
                    heightmap_interior=dp.interior_heightmap_target())
 
 
-def evaluate(simulator: Simulator, dp: Datapoint, params: Parameters) -> dict[str, float]:
-    """Simulate ``dp`` with ``params`` and return its five validation metrics (mm); raises
-    :class:`SimulationError` if the simulation fails."""
-    final = simulator.forward(scene(dp), params, keep_substeps=False)
+def evaluate(simulator: Simulator, dp: Datapoint, params: Parameters,
+             final: np.ndarray | None = None) -> dict[str, float]:
+    """The five validation metrics (mm) of ``dp`` simulated with ``params``, or of its ``final`` particle
+    positions (n, 3) in m if that simulation has already run; raises :class:`SimulationError` if the
+    simulation fails."""
+    if final is None:
+        final = simulator.forward(scene(dp), params, keep_substeps=False)
     return validation_metrics(final, dp.pcd_target, dp.prt_target, dp.heightmap, dp.centre_xy, dp.table_z,
                               dp.particle_size)
 
@@ -85,15 +88,28 @@ def _nan_gradient() -> dict[str, float]:
     return {n: math.nan for n in NAMES}
 
 
+class TrainingPass(NamedTuple):
+    """One pass over the training set at θ: the mean loss (mm) and screened mean gradient (mm per parameter
+    unit; None if all were skipped) over the datapoints kept by the SPEC §6 rules, the number skipped, and the
+    final particle positions (n, 3) in m of each datapoint whose simulation succeeded, keyed by ``id()`` of
+    the datapoint object (so that validating on the same objects needs no second simulation)."""
+
+    loss_mm: float
+    gradient: dict[str, float] | None
+    skipped: int
+    finals: dict[int, np.ndarray]
+
+
 def training_gradient(simulator: Simulator, training: Sequence[Datapoint], params: Parameters,
-                      loss: str) -> tuple[float, dict[str, float] | None, int]:
-    """Mean loss (mm) and screened mean gradient (mm per parameter unit; None if all skipped) over the
-    training datapoints kept by the SPEC §6 rules, and the number skipped."""
+                      loss: str) -> TrainingPass:
+    """Simulate every training datapoint with ``params`` and back-propagate ``loss`` (see :class:`TrainingPass`)."""
     loss_fn = loss_by_name(loss)
-    values, gradients = [], []
+    values, gradients, finals = [], [], {}
     for dp in training:
         try:
-            value, d_positions = loss_fn(simulator.forward(scene(dp), params), targets(dp))
+            final = simulator.forward(scene(dp), params)
+            finals[id(dp)] = final
+            value, d_positions = loss_fn(final, targets(dp))
             gradient = simulator.backward(d_positions)
         except SimulationError:
             value, gradient = math.nan, _nan_gradient()
@@ -101,17 +117,19 @@ def training_gradient(simulator: Simulator, training: Sequence[Datapoint], param
         gradients.append(gradient)
     screened = screen_gradients(gradients, values)
     kept = [v for v, g in zip(values, gradients) if screen_gradients([g], [v]).skipped == 0]
-    return (float(np.mean(kept)) if kept else math.nan), screened.gradient, screened.skipped
+    return TrainingPass(float(np.mean(kept)) if kept else math.nan, screened.gradient, screened.skipped, finals)
 
 
-def validation(simulator: Simulator, datapoints: Sequence[Datapoint],
-               params: Parameters) -> tuple[dict[str, float], int]:
+def validation(simulator: Simulator, datapoints: Sequence[Datapoint], params: Parameters,
+               simulated: Mapping[int, np.ndarray] | None = None) -> tuple[dict[str, float], int]:
     """The five metrics (mm) averaged over the datapoints whose simulation succeeds (NaN if none does),
-    and the number that failed."""
+    and the number that failed. ``simulated``: final positions already computed at ``params``, keyed by
+    ``id()`` of the datapoint object (:attr:`TrainingPass.finals`); the others are simulated here."""
+    simulated = simulated or {}
     rows = []
     for dp in datapoints:
         try:
-            rows.append(evaluate(simulator, dp, params))
+            rows.append(evaluate(simulator, dp, params, simulated.get(id(dp))))
         except SimulationError:
             pass
     means = {m: float(np.mean([r[m] for r in rows])) if rows else math.nan for m in METRICS}
@@ -308,7 +326,8 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
     simulator settings or library code) instead of refusing to continue it; ``labels``: what the run is
     (level, loss, dataset, seed, start, material), written into its summary for the reports; ``known``:
     parameters held at given values instead of identified (see :func:`hold_known`; multiplying E, ρ and
-    σ_y by one factor changes no motion, so a measured ρ is what makes E and σ_y identifiable).
+    σ_y by one factor changes no motion, so a measured ρ is what makes E and σ_y identifiable). A validation
+    datapoint that is the same object as a training one is validated on its training simulation.
     """
     config = simulator.config if simulator is not None else SimulatorConfig()
     initial = hold_known(check_run(level, loss, training, validation_set, seed, iterations, initial, config),
@@ -341,10 +360,10 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
             simulator = Simulator(config)
         start = time.perf_counter()
         params = initial.replace(**adam.values)
-        loss_mm, gradient, skipped = training_gradient(simulator, training, params, loss)
-        metrics, val_skipped = validation(simulator, validation_set, params)
-        rows.append(_row(len(rows), params, loss_mm, gradient, skipped, metrics, val_skipped,
-                         time.perf_counter() - start))
+        trained = training_gradient(simulator, training, params, loss)
+        metrics, val_skipped = validation(simulator, validation_set, params, trained.finals)
+        rows.append(_row(len(rows), params, trained.loss_mm, trained.gradient, trained.skipped, metrics,
+                         val_skipped, time.perf_counter() - start))
         _save_state(out_dir / STATE_FILE, fingerprint, key, adam, rows)
         row = rows[-1]
         bar.update(row["iteration"], f"loss {row['train_loss_mm']:.1f} mm, val height map "
@@ -359,5 +378,5 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
 
 
 __all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "IdentificationError", "scene", "targets",
-           "inputs_key", "evaluate", "training_gradient", "validation", "check_run", "hold_known", "summarise",
+           "inputs_key", "evaluate", "TrainingPass", "training_gradient", "validation", "check_run", "hold_known", "summarise",
            "identify"]

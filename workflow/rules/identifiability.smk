@@ -76,7 +76,7 @@ if "identifiability" in ANALYSES:
         wildcard_constraints:
             rung="R[0-2]",
         params:
-            iterations=lambda w: ladder_iterations(w.rung),
+            iterations=lambda w: run_iterations(w.rung, w.dataset),
             initial=LADDER["initial"],
             known=LADDER.get("known", {}),
             simulator=simulator_params(),

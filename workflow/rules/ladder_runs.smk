@@ -85,8 +85,18 @@ if "identifiability" in ANALYSES:
         return sorted({LADDER_REFERENCE.format(**labels) for labels in runs.values()})
 
     OOD_RUNS = LADDER.get("ood_runs", {"rungs": [], "losses": []})
-    for rung in {*LADDER["rungs"], *OOD_RUNS["rungs"]}:
-        ladder_iterations(rung)  # fails at start-up if a per-rung mapping misses a rung
+
+    def run_iterations(rung, dataset):
+        """Iterations of a ladder run: `ood_runs.iterations` on dataset ood if given, else the rung's."""
+        if dataset == OOD_DATASET and "iterations" in OOD_RUNS:
+            return OOD_RUNS["iterations"]
+        return ladder_iterations(rung)
+
+    # fail at start-up if a per-rung mapping misses a rung
+    for rung in LADDER["rungs"]:
+        ladder_iterations(rung)
+    for rung in OOD_RUNS["rungs"]:
+        run_iterations(rung, OOD_DATASET)
     LADDER_TABLES = {
         "identifiability": {
             **ladder_runs(LADDER["rungs"], LADDER["losses"], LADDER["datasets"]),

@@ -15,11 +15,13 @@ w, p = snakemake.wildcards, snakemake.params
 labels = {**dict(w.items()), "level": int(w.level), "seed": int(w.seed), "start": p.initial,
           "material": w.get("material", "clay")}
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
-    training = [load_datapoint(f) for f in snakemake.input.training]
+    # a datapoint in both sets is loaded once, so that validation reuses its training simulation
+    loaded = {f: load_datapoint(f) for f in dict.fromkeys([*snakemake.input.training, *snakemake.input.validation])}
+    training = [loaded[f] for f in snakemake.input.training]
     truth = load_truth(Path(snakemake.input.truth[0]).parent)["materials"]["clay"] if snakemake.input.truth else None
     identification.identify(
         Path(snakemake.output.summary).parent, int(w.level), w.loss, training,
-        [load_datapoint(f) for f in snakemake.input.validation], seed=int(w.seed), iterations=p.iterations,
+        [loaded[f] for f in snakemake.input.validation], seed=int(w.seed), iterations=p.iterations,
         initial=HAND_PICKED if p.initial == "hand-picked" else None, truth=truth,
         simulator=Simulator(SimulatorConfig(**p.simulator)), progress=sys.stderr, restart_if_different=True,
         labels=labels, known=p.known)
