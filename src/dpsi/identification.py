@@ -378,5 +378,5 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
 
 
 __all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "IdentificationError", "scene", "targets",
-           "inputs_key", "evaluate", "TrainingPass", "training_gradient", "validation", "check_run", "hold_known", "summarise",
-           "identify"]
+           "inputs_key", "evaluate", "TrainingPass", "training_gradient", "validation", "check_run", "hold_known",
+           "summarise", "identify"]
