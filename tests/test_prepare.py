@@ -7,7 +7,7 @@ import yaml
 from scipy.spatial import cKDTree
 
 from dpsi.capture import capture
-from dpsi.datapoint import load_datapoint, save_datapoint
+from dpsi.datapoint import load_datapoint, load_datapoint_sets, save_datapoint
 from dpsi.heightmap import CELLS, footprint_centre, height_map
 from dpsi.motions import MOTIONS, plan, write_waypoints
 from dpsi.pointclouds import read_mesh, write_mesh, write_points
@@ -77,6 +77,14 @@ def test_views_become_a_datapoint(from_views, tmp_path):
     again = load_datapoint(tmp_path / "views.npz")
     np.testing.assert_array_equal(again.particles, dp.particles)
     np.testing.assert_array_equal(again.heightmap, dp.heightmap)
+
+
+def test_a_datapoint_named_in_two_sets_is_read_once_and_shared(from_views, tmp_path):
+    for name in ("a", "b"):
+        save_datapoint(tmp_path / f"{name}.npz", from_views)
+    training, validation = load_datapoint_sets([tmp_path / "a.npz", tmp_path / "b.npz"], [tmp_path / "a.npz"])
+    assert validation[0] is training[0] and training[1] is not training[0]
+    np.testing.assert_array_equal(training[1].particles, from_views.particles)
 
 
 def test_meshes_enter_at_filling_and_prt_target_fits(raw):

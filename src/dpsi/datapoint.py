@@ -3,6 +3,7 @@ reconstruction stages. Stored as one ``.npz`` file. Lengths in m, robot base fra
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -81,3 +82,13 @@ def load_datapoint(path: str | Path) -> Datapoint:
     effector = Effector(shape["name"], shape["kind"], tuple(shape["size"]), shape["initial_yaw"],
                         sdf if sdf.size else None, tuple(shape["sdf_lower"]), shape["sdf_spacing"])
     return Datapoint(trajectory=trajectory, effector=effector, **meta, **arrays)
+
+
+def load_datapoint_sets(*path_lists: Sequence[str | Path]) -> list[list[Datapoint]]:
+    """The datapoints of each list of paths, a path named in several lists read once: the lists then share that
+    :class:`Datapoint` object, so a simulation of it in one set can stand for it in another."""
+    loaded: dict[str | Path, Datapoint] = {}
+    for path in (path for paths in path_lists for path in paths):
+        if path not in loaded:
+            loaded[path] = load_datapoint(path)
+    return [[loaded[path] for path in paths] for paths in path_lists]

@@ -110,15 +110,18 @@ def reference(simulator: Simulator, training: Sequence[Datapoint], validation: S
     finals = [simulator.forward(scene(dp), truth, keep_substeps=False) for dp in training]
     loss_at_truth = {loss: float(np.mean([loss_by_name(loss)(final, targets(dp))[0]
                                           for final, dp in zip(finals, training)])) for loss in LADDER_LOSSES}
+    at_truth = {id(dp): final for dp, final in zip(training, finals)}  # a validation datapoint may be a training one
 
-    def val_heightmap(params: Parameters) -> float:
-        return float(np.mean([evaluate(simulator, dp, params)["heightmap_mm"] for dp in validation]))
+    def val_heightmap(params: Parameters, simulated: dict[int, np.ndarray]) -> float:
+        return float(np.mean([evaluate(simulator, dp, params, simulated.get(id(dp)))["heightmap_mm"]
+                              for dp in validation]))
 
     hand_picked = HAND_PICKED.replace(**LEVEL1_FIXED) if level == 1 else HAND_PICKED
     no_motion = float(np.mean([heightmap_distance_mm(simulated_heightmap(dp.particles, dp.heightmap_target()),
                                                      dp.heightmap) for dp in validation]))
     return {"level": level, "truth": truth.as_dict(), "loss_at_truth_mm": loss_at_truth,
-            "val_heightmap_truth_mm": val_heightmap(truth), "val_heightmap_hand_picked_mm": val_heightmap(hand_picked),
+            "val_heightmap_truth_mm": val_heightmap(truth, at_truth),
+            "val_heightmap_hand_picked_mm": val_heightmap(hand_picked, {}),
             "val_heightmap_no_motion_mm": no_motion}
 
 
@@ -163,7 +166,8 @@ def ladder_table(summaries: Sequence[dict], logs: pd.DataFrame, references: Mapp
 def recovery_summary(table: pd.DataFrame) -> pd.DataFrame:
     """Median relative error per (rung, level, dataset, loss) and parameter over seeds (the ladder at a
     glance, for a notebook or the README)."""
-    return table.groupby(["rung", "level", "dataset", "loss", "parameter"])["rel_error"].median().unstack("parameter")
+    by_run = table.groupby(["rung", "level", "dataset", "loss", "parameter"])
+    return by_run["rel_error"].median().unstack("parameter")
 
 
 SCAN_PARAMETERS = ("E", "yield_stress")
