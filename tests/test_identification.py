@@ -221,6 +221,22 @@ def test_all_skipped_stops_early(problem, tmp_path):
 OUT_OF_RANGE = Parameters(E=1e6, nu=0.4, rho=1330.0, yield_stress=1e3, mu_table=0.7, mu_effector=0.7)
 
 
+def test_the_best_iteration_is_chosen_by_the_validation_map_or_by_the_training_loss():
+    def row(k, train_loss_mm, val_heightmap_mm):
+        values = dict.fromkeys(COLUMNS, 0.0)
+        return {**values, **HAND_PICKED.replace(E=1e4 * (k + 1)).as_dict(), "iteration": k,
+                "train_loss_mm": train_loss_mm, "val_heightmap_mm": val_heightmap_mm}
+
+    # row 0 (the initial values) fits best by both, but only updated rows are candidates
+    rows = [row(0, 1.0, 1.0), row(1, 50.0, 700.0), row(2, 40.0, 800.0), row(3, math.nan, 600.0), row(4, 45.0, 900.0)]
+    by_validation = identification.summarise(rows, {}, 4, TRUTH)
+    by_training = identification.summarise(rows, {}, 4, TRUTH, select="training")
+    assert (by_validation["best"]["iteration"], by_validation["selected_by"]) == (3, "validation")
+    assert (by_training["best"]["iteration"], by_training["selected_by"]) == (2, "training")
+    assert by_training["best"]["parameters"]["E"] == 3e4
+    assert by_training["relative_error"]["E"] == pytest.approx(0.4)
+
+
 @pytest.mark.parametrize("change, message", [
     ({"loss": "l2"}, "unknown loss 'l2'"),
     ({"training": []}, "training dataset is empty"),
@@ -232,6 +248,7 @@ OUT_OF_RANGE = Parameters(E=1e6, nu=0.4, rho=1330.0, yield_stress=1e3, mu_table=
     ({"known": {"mu_table": 1.0}}, "'mu_table'] are not identified at level 1"),
     ({"known": {"E": 5e4, "nu": 0.3, "rho": 1200.0, "yield_stress": 2500.0}}, "every parameter of level 1 is known"),
     ({"known": {"rho": 5000.0}}, "known value: parameter rho=5000.0"),
+    ({"select": "final"}, "unknown choice of the best iteration 'final'"),
     ({"simulator": SimpleNamespace(config=SimulatorConfig(max_particles=100), forward=_failing)},
      "training datapoint 'round' has 245 particles, more than the simulator's max_particles=100"),
     ({"simulator": SimpleNamespace(config=dataclasses.replace(CONFIG, step_dt=0.005), forward=_failing)},

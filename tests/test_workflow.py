@@ -31,6 +31,8 @@ def edited_config(tmp_path, edit):
     (lambda c: c["analyses"]["identifiability"].update(ood_landscapes=["R3"]), "R3"),
     (lambda c: c["analyses"]["identifiability"].update(ood_runs={"rungs": ["R2"], "losses": ["prt_chamfer"]}),
      "prt_chamfer"),
+    (lambda c: c["analyses"]["identifiability"].update(
+        ood_runs={"rungs": ["R2"], "losses": ["heightmap_interior"], "select": "final"}), "final"),
 ])
 def test_bad_config_fails_at_start_up(tmp_path, edit, message):
     run = snakemake(tmp_path, "-n", "tables", config=edited_config(tmp_path, edit))

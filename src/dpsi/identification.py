@@ -6,7 +6,9 @@ the values after k Adam updates. Row k holds θ_k, the mean training loss (mm) a
 gradient at θ_k (the gradient that makes θ_{k+1}), and the five validation metrics (mm) at θ_k,
 averaged over the validation datapoints. So row k ≥ 1 is the paper's record "after update k" and
 row 0 adds the initial values (for figures); the best iteration is chosen among the updated rows
-k ≥ 1 only, as in the paper. (The last row's gradient is computed but not applied: ~1 % extra work.)
+k ≥ 1 only, as in the paper, by the lowest validation height-map distance (``select="validation"``) or,
+for a run validated on its own training datapoints, by the lowest training loss (``select="training"``).
+(The last row's gradient is computed but not applied: ~1 % extra work.)
 
 A datapoint whose simulation raises :class:`SimulationError` or whose gradient fails
 :func:`dpsi.optim.screen_gradients` is skipped for that row and counted. If every training
@@ -54,6 +56,9 @@ METRICS = tuple(VALIDATION_METRICS)
 COLUMNS = ("iteration", *NAMES, "train_loss_mm", *(f"grad_{n}" for n in NAMES),
            *(f"val_{m}" for m in METRICS), "skipped", "val_skipped", "wall_s")
 """Log columns: parameters in their SI units, gradients in mm per parameter unit, wall time in s."""
+
+SELECT_COLUMNS = {"validation": "val_heightmap_mm", "training": "train_loss_mm"}
+"""How a run's best iteration is chosen → the log column whose lowest finite value chooses it."""
 
 _CANNOT_UPDATE = "every training datapoint was skipped at iteration {k}, so θ cannot change any more"
 
@@ -287,15 +292,17 @@ def _gradient_of(row: dict) -> dict[str, float] | None:
 
 
 def summarise(rows: Sequence[dict], fingerprint: dict, iterations: int, truth: Parameters | None,
-              labels: Mapping | None = None) -> dict:
-    """The run summary: its ``labels`` (what the run is, for the reports), best row (lowest finite validation height-map distance among rows k ≥ 1, or
-    row 0 if there are none), its parameters and metrics, the final parameters and, given ``truth``,
-    the relative error |best − truth| / |truth| of each parameter."""
-    candidates = [r for r in (rows[1:] or rows) if r["val_heightmap_mm"] is not None
-                  and math.isfinite(r["val_heightmap_mm"])]
-    best = min(candidates, key=lambda r: r["val_heightmap_mm"]) if candidates else None
+              labels: Mapping | None = None, select: str = "validation") -> dict:
+    """The run summary: its ``labels`` (what the run is, for the reports), best row (lowest finite value of
+    the :data:`SELECT_COLUMNS` column of ``select`` among rows k ≥ 1, or row 0 if there are none), its
+    parameters and metrics, the final parameters and, given ``truth``, the relative error
+    |best − truth| / |truth| of each parameter."""
+    column = _select_column(select)
+    candidates = [r for r in (rows[1:] or rows) if r[column] is not None and math.isfinite(r[column])]
+    best = min(candidates, key=lambda r: r[column]) if candidates else None
     completed = rows[-1]["iteration"]
-    out = {**fingerprint, "labels": dict(labels or {}), "iterations": iterations, "completed_iterations": completed,
+    out = {**fingerprint, "labels": dict(labels or {}), "selected_by": select, "iterations": iterations,
+           "completed_iterations": completed,
            "stopped_early": None if completed == iterations else _CANNOT_UPDATE.format(k=completed),
            "skipped_total": int(sum(r["skipped"] for r in rows)),
            "wall_s": float(sum(r["wall_s"] for r in rows)),
@@ -310,12 +317,18 @@ def summarise(rows: Sequence[dict], fingerprint: dict, iterations: int, truth: P
     return out
 
 
+def _select_column(select: str) -> str:
+    if select not in SELECT_COLUMNS:
+        raise IdentificationError(f"unknown choice of the best iteration {select!r}; use one of {list(SELECT_COLUMNS)}")
+    return SELECT_COLUMNS[select]
+
+
 def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Datapoint],
              validation_set: Sequence[Datapoint], seed: int = 0, iterations: int = 100,
              initial: Parameters | None = None, truth: Parameters | None = None,
              simulator: Simulator | None = None, progress: TextIO | None = None,
              restart_if_different: bool = False, labels: Mapping | None = None,
-             known: Mapping[str, float] | None = None) -> dict:
+             known: Mapping[str, float] | None = None, select: str = "validation") -> dict:
     """Run (or resume) an identification into ``out_dir`` and return its summary (see module doc).
 
     ``initial``: the starting θ (default random from ``seed`` in the level's ranges; at level 1 its frictions
@@ -328,7 +341,9 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
     parameters held at given values instead of identified (see :func:`hold_known`; multiplying E, ρ and
     σ_y by one factor changes no motion, so a measured ρ is what makes E and σ_y identifiable). A validation
     datapoint that is the same object as a training one is validated on its training simulation.
+    ``select``: how the best iteration is chosen (:data:`SELECT_COLUMNS`); it changes only the summary.
     """
+    _select_column(select)
     config = simulator.config if simulator is not None else SimulatorConfig()
     initial = hold_known(check_run(level, loss, training, validation_set, seed, iterations, initial, config),
                          known, level)
@@ -371,12 +386,12 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
     bar.close()
     with atomic_output(out_dir / LOG_FILE) as tmp:
         pd.DataFrame(rows, columns=list(COLUMNS)).to_csv(tmp, index=False)
-    summary = summarise(rows, fingerprint, iterations, truth, labels)
+    summary = summarise(rows, fingerprint, iterations, truth, labels, select)
     with atomic_output(out_dir / SUMMARY_FILE) as tmp:
         tmp.write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
 
-__all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "IdentificationError", "scene", "targets",
+__all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "SELECT_COLUMNS", "IdentificationError", "scene", "targets",
            "inputs_key", "evaluate", "TrainingPass", "training_gradient", "validation", "check_run", "hold_known",
            "summarise", "identify"]

@@ -79,6 +79,7 @@ if "identifiability" in ANALYSES:
             iterations=lambda w: run_iterations(w.rung, w.dataset),
             initial=LADDER["initial"],
             known=LADDER.get("known", {}),
+            select=lambda w: run_selection(w.dataset),
             simulator=simulator_params(),
 
     rule ladder_same_target:

@@ -34,6 +34,7 @@ rule identify:
         iterations=IDENT["iterations"],
         initial=IDENT.get("initial", "random"),
         known=IDENT.get("known", {}),
+        select="validation",
         simulator=simulator_params(),
     script:
         "../scripts/identify.py"
@@ -67,6 +68,7 @@ if RUN_ANALYSES:
             iterations=lambda w: ANALYSES[w.analysis]["iterations"],
             initial=lambda w: w.start,
             known={},
+            select="validation",
             simulator=simulator_params(),
 
 

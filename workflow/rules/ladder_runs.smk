@@ -92,6 +92,12 @@ if "identifiability" in ANALYSES:
             return OOD_RUNS["iterations"]
         return ladder_iterations(rung)
 
+    def run_selection(dataset):
+        """How a ladder run's best iteration is chosen: `ood_runs.select` on dataset ood, else by validation."""
+        if dataset == OOD_DATASET:
+            return OOD_RUNS.get("select", "validation")
+        return "validation"
+
     # fail at start-up if a per-rung mapping misses a rung
     for rung in LADDER["rungs"]:
         ladder_iterations(rung)
