@@ -4,6 +4,7 @@ import os
 import subprocess
 import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -180,6 +181,27 @@ def test_taichi_runs_on_the_threads_asked_for_and_by_default_on_every_cpu_the_pr
                              text=True)
         assert out.returncode == 0, out.stderr
         assert int(out.stdout.split()[-1]) == expected
+
+
+def test_a_kernel_that_does_not_compile_is_named_by_file_line_function_and_source(sim):
+    """Taichi's source positions are replaced by a cheaper text (dpsi.simulation.runtime.source_position);
+    an error in a kernel must still say where it is."""
+    import taichi as ti
+    from taichi.lang.ast.ast_transformer_utils import ASTTransformerContext
+    from dpsi.simulation.runtime import source_position
+
+    @ti.kernel
+    def broken() -> ti.i32:
+        return undefined_name + 1  # noqa: F821
+
+    with pytest.raises(Exception) as raised:
+        broken()
+    source = Path(__file__).read_text().splitlines()
+    line = next(k for k, text in enumerate(source, 1) if text.strip() == "return undefined_name + 1  # noqa: F821")
+    assert ASTTransformerContext.get_pos_info is source_position
+    assert f'File "{__file__}", line {line}, in broken:' in str(raised.value)
+    assert "return undefined_name + 1" in str(raised.value)
+    assert 'Name "undefined_name" is not defined' in str(raised.value)
 
 
 def test_the_thread_count_must_be_positive():

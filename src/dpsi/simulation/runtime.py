@@ -6,8 +6,20 @@ import os
 
 import taichi as ti
 from taichi.lang import impl
+from taichi.lang.ast import ast_transformer_utils
 
 _initialised: tuple[str, str] | None = None
+
+
+def source_position(context, node) -> str:
+    """Where a kernel's AST ``node`` is, for Taichi's error messages: file, line, function and that line.
+
+    Taichi 1.7 builds this text for every node of every kernel each time a process first calls the kernel,
+    even when the compiled kernel then comes from the offline cache, and its own version underlines the node
+    with carets re-wrapped by ``textwrap``: about a third of a warm first call of the simulator (0.8 s of
+    2.5–3 s for poking-1, docs/benchmarks.md). This plain version names the same place."""
+    return (f'File "{context.file}", line {node.lineno + context.lineno_offset}, in {context.func.func.__name__}:\n'
+            f"{context.src[node.lineno - 1]}\n")
 
 
 def ensure_taichi(arch: str = "cpu", precision: str = "f64", threads: int | None = None) -> None:
@@ -38,6 +50,8 @@ def ensure_taichi(arch: str = "cpu", precision: str = "f64", threads: int | None
     cache = os.environ.get("DPSI_TAICHI_CACHE")
     if cache:
         options["offline_cache_file_path"] = cache
+    if ti.__version__[:2] == (1, 7):  # the attributes source_position reads are Taichi 1.7's
+        ast_transformer_utils.ASTTransformerContext.get_pos_info = source_position
     ti.init(**options)
     if impl.current_cfg().arch != archs[arch]:
         raise RuntimeError(f"Taichi found no usable {arch!r} device here and fell back to "
