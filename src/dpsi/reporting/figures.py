@@ -225,10 +225,10 @@ def plot_recovery(table: pd.DataFrame, png_path: str | Path, pdf_path: str | Pat
     for (level, dataset), row_axes in zip(rows, axes):
         for ax, rung in zip(row_axes, rungs):
             panel = table[(table["level"] == level) & (table["dataset"] == dataset) & (table["rung"] == rung)]
-            ax.set_title(f"level {level}, {dataset}, {rung}", fontsize=9)
             if panel.empty:
-                ax.set_axis_off()
+                ax.set_visible(False)
                 continue
+            ax.set_title(f"level {level}, {dataset}, {rung}", fontsize=9)
             names = [n for n in (*IDENTIFIED[level], *SCALE_FREE) if n in set(panel["parameter"])]
             for k, loss in enumerate(losses):
                 mine = panel[panel["loss"] == loss]
