@@ -413,6 +413,19 @@ def test_instability_names_the_step_and_parameters():
         unstable.forward(scene(block(), path(10, dz=-0.0003), effectors.ROUND), STIFFEST)
 
 
+def test_a_forward_that_fails_leaves_no_earlier_run_to_differentiate():
+    """A forward pass lets the last run's checkpoints go before it starts (so that two runs' never share the
+    peak memory): after a failed run, backward refuses rather than differentiate the run before it."""
+    unstable = Simulator(SimulatorConfig(width=0.12, height=0.08, max_particles=400, max_steps=20, cfl=1.0,
+                                         min_substeps=1))
+    poke = scene(block(), path(10, dz=-0.0003), effectors.ROUND)
+    unstable.forward(poke, HAND_PICKED)
+    with pytest.raises(SimulationError, match="step"):
+        unstable.forward(poke, STIFFEST)
+    with pytest.raises(SimulationError, match="needs a forward"):
+        unstable.backward(np.zeros((len(block()), 3)))
+
+
 def test_backward_needs_forward():
     with pytest.raises(SimulationError, match="forward"):
         Simulator(CONFIG).backward(np.zeros((1, 3)))

@@ -866,6 +866,8 @@ class Simulator:
         faster; pass False when no backward pass follows)."""
         self._set_scene(scene)
         self._set_params(params)
+        # let the last run's checkpoints go before this run's exist: both at once set the peak memory
+        self._params = self._checkpoints = self._substates = None
         n, steps = len(scene.particles), scene.trajectory.n_steps
         checkpoints = np.empty((steps + 1, n, STATE_WIDTH), dtype=self.float)
         checkpoints[0] = 0.0
