@@ -194,7 +194,7 @@ def test_a_kernel_that_does_not_compile_is_named_by_file_line_function_and_sourc
     def broken() -> ti.i32:
         return undefined_name + 1  # noqa: F821
 
-    with pytest.raises(Exception) as raised:
+    with pytest.raises(ti.TaichiNameError) as raised:
         broken()
     source = Path(__file__).read_text().splitlines()
     line = next(k for k, text in enumerate(source, 1) if text.strip() == "return undefined_name + 1  # noqa: F821")
@@ -414,8 +414,8 @@ def test_instability_names_the_step_and_parameters():
 
 
 def test_a_forward_that_fails_leaves_no_earlier_run_to_differentiate():
-    """A forward pass lets the last run's checkpoints go before it starts (so that two runs' never share the
-    peak memory): after a failed run, backward refuses rather than differentiate the run before it."""
+    """A forward pass lets the last run's checkpoints go before it starts (so that two runs' checkpoints never
+    share the peak memory): after a failed run, backward refuses rather than differentiate the run before it."""
     unstable = Simulator(SimulatorConfig(width=0.12, height=0.08, max_particles=400, max_steps=20, cfl=1.0,
                                          min_substeps=1))
     poke = scene(block(), path(10, dz=-0.0003), effectors.ROUND)

@@ -392,6 +392,6 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
     return summary
 
 
-__all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "SELECT_COLUMNS", "IdentificationError", "scene", "targets",
-           "inputs_key", "evaluate", "TrainingPass", "training_gradient", "validation", "check_run", "hold_known",
-           "summarise", "identify"]
+__all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "SELECT_COLUMNS", "IdentificationError",
+           "scene", "targets", "inputs_key", "evaluate", "TrainingPass", "training_gradient", "validation", "check_run",
+           "hold_known", "summarise", "identify"]
