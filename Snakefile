@@ -10,13 +10,17 @@ from snakemake.utils import min_version
 min_version("9.0")
 
 
-configfile: "config/config.yaml"
+# A config given with --configfile is the whole configuration: the quick default is read only when none
+# is given, so that its synthetic twin (or any other section) never slips into a user's configuration.
+if not workflow.overwrite_configfiles:
+
+    configfile: f"{workflow.basedir}/config/config.yaml"
 
 
 include: "workflow/rules/common.smk"
 
 
-if "twin" in config:
+if TWIN:
 
     include: "workflow/rules/twin.smk"
 

@@ -56,7 +56,7 @@ def test_cached_kernels_lists_the_kernel_files_of_the_cache(tmp_path):
 
 def test_tiny_workflow_makes_the_cost_table(tiny_run):
     settings = yaml.safe_load(TINY.read_text())["analyses"]["cost"]
-    tables = tiny_run / "results" / "tables"
+    tables = tiny_run / "results" / "twin-tiny" / "tables"
     table = pd.read_csv(tables / "cost.csv")
     assert all((tables / f"cost.{suffix}").stat().st_size > 0 for suffix in ("md", "tex"))
     assert list(table.columns) == list(COLUMNS)

@@ -144,7 +144,7 @@ def test_workflow_makes_every_landscape_and_its_figure(tiny_run):
     config = yaml.safe_load(TINY.read_text())
     settings, levels = config["analyses"]["landscapes"], config["identification"]["levels"]
     folder = tiny_run / "results" / config["dataset"]
-    truth = json.loads((tiny_run / "raw" / config["dataset"] / "truth.json").read_text())["materials"]["clay"]
+    truth = json.loads((tiny_run / "results" / config["dataset"] / "raw" / "truth.json").read_text())["materials"]["clay"]
     resolution = settings["resolution"]
     pairs = [p for p in PAIRS if p.level in levels]
     assert len(pairs) == 3
@@ -157,7 +157,7 @@ def test_workflow_makes_every_landscape_and_its_figure(tiny_run):
             np.testing.assert_array_equal(landscape.first, axis(pair.first, resolution))
             assert landscape.fixed == Parameters.checked(**truth)
         for suffix in ("png", "pdf"):
-            assert (tiny_run / "results" / "figures" / f"landscapes_{pair.name}.{suffix}").stat().st_size > 10_000
+            assert (tiny_run / "results" / "twin-tiny" / "figures" / f"landscapes_{pair.name}.{suffix}").stat().st_size > 10_000
 
 
 def test_a_landscape_dataset_the_datapoints_cannot_form_fails_at_start_up(tmp_path):

@@ -107,7 +107,7 @@ def test_candidates_leaving_the_simulated_box_are_skipped_and_recorded(simulator
 
 # ---------------------------------------------------------------- workflow
 def test_workflow_plan_lowers_the_distance_to_its_target(tiny_run):
-    tables, figures = tiny_run / "results" / "tables", tiny_run / "results" / "figures"
+    tables, figures = tiny_run / "results" / "twin-tiny" / "tables", tiny_run / "results" / "twin-tiny" / "figures"
     outputs = [tables / f"planning.{s}" for s in ("csv", "md", "tex")]
     for path in outputs + [figures / f"planning.{s}" for s in ("png", "pdf")]:
         assert path.stat().st_size > 0, path

@@ -145,7 +145,7 @@ def test_a_material_without_datapoints_fails_at_start_up(tmp_path):
 
 # ------------------------------------------------------------------ the tiny workflow (tests/data/tiny.yaml)
 def test_tiny_materials_table(tiny_run):
-    table = pd.read_csv(tiny_run / "results" / "tables" / "materials.csv")
+    table = pd.read_csv(tiny_run / "results" / "twin-tiny" / "tables" / "materials.csv")
     assert list(table.columns) == ["material", "parameter", "truth", "seed0", "estimate", "rel_error",
                                    "val_heightmap_mm"]
     assert list(table.material) == ["slime"] * 6 and list(table.parameter) == list(NAMES)
@@ -157,7 +157,7 @@ def test_tiny_materials_table(tiny_run):
 
 
 def test_tiny_minima_table(tiny_run):
-    table = pd.read_csv(tiny_run / "results" / "tables" / "minima.csv", dtype={"seed": str})
+    table = pd.read_csv(tiny_run / "results" / "twin-tiny" / "tables" / "minima.csv", dtype={"seed": str})
     assert list(table.start) == ["random", "hand-picked"] and list(table.seed) == ["0", ANY_SEED_LABEL]
     assert (table.dataset == "1-round").all() and (table.val_heightmap_mm > 0).all()
     hand_picked = pd.read_csv(next((tiny_run / "results" / "twin-tiny" / "minima" / "clay" / "hand-picked")
@@ -166,14 +166,14 @@ def test_tiny_minima_table(tiny_run):
 
 
 def test_tiny_heightmap_losses_table(tiny_run):
-    table = pd.read_csv(tiny_run / "results" / "tables" / "heightmap_losses.csv")
+    table = pd.read_csv(tiny_run / "results" / "twin-tiny" / "tables" / "heightmap_losses.csv")
     assert list(table.loss) == ["heightmap", "neg_heightmap"] * 2
     assert list(table.dataset) == ["1-round", "1-round", "average", "average"]
     assert (table.filter(like="val_") > 0).all().all()
 
 
 def test_tiny_ladder_reports_the_rung_0_prt_run_for_the_pcd_loss_too(tiny_run):
-    table = pd.read_csv(tiny_run / "results" / "tables" / "identifiability_R0.csv")
+    table = pd.read_csv(tiny_run / "results" / "twin-tiny" / "tables" / "identifiability_R0.csv")
     by_loss = {loss: rows.drop(columns="loss").reset_index(drop=True) for loss, rows in table.groupby("loss")}
     assert set(by_loss) == {"pcd_cd", "prt_cd"} and len(by_loss["prt_cd"]) == len(IDENTIFIED[1]) + 2
     pd.testing.assert_frame_equal(by_loss["pcd_cd"], by_loss["prt_cd"])
@@ -185,5 +185,5 @@ def test_tiny_ladder_reports_the_rung_0_prt_run_for_the_pcd_loss_too(tiny_run):
 
 def test_tiny_analysis_figures(tiny_run):
     for name in ("materials", "minima", "heightmap_losses"):
-        assert (tiny_run / "results" / "figures" / f"{name}.png").stat().st_size > 10_000
-        assert (tiny_run / "results" / "figures" / f"{name}.pdf").stat().st_size > 1_000
+        assert (tiny_run / "results" / "twin-tiny" / "figures" / f"{name}.png").stat().st_size > 10_000
+        assert (tiny_run / "results" / "twin-tiny" / "figures" / f"{name}.pdf").stat().st_size > 1_000

@@ -1,6 +1,7 @@
 """The Snakemake workflow: configuration checks, lint and format, and a tiny end-to-end run through a
 cluster executor plugin (each job a separate submission, so nothing can rely on shared process state)."""
 
+import hashlib
 import shutil
 import subprocess
 import sys
@@ -149,7 +150,7 @@ def test_failing_raw_data_job_writes_its_error_to_its_log(tmp_path):
     run = snakemake(project, "-j1", "-k", "--until", "trajectory", "--", "tables", config=config)
     assert run.returncode != 0
     for datapoint in ("train-0", "validation-0"):
-        log = (project / "results" / "logs" / "check_raw" / f"{datapoint}.log").read_text()
+        log = (project / "results" / "probe" / "logs" / "check_raw" / f"{datapoint}.log").read_text()
         assert "FAILED: " in log and "trajectories/poking-2.csv" in log and "Traceback" in log, log
 
 
@@ -178,7 +179,7 @@ def test_changing_one_stage_parameter_reruns_only_what_depends_on_it(tiny_run, t
 
 
 def test_tiny_workflow_makes_every_table(tiny_run):
-    tables = tiny_run / "results" / "tables"
+    tables = tiny_run / "results" / "twin-tiny" / "tables"
     motions = pd.read_csv(tables / "motions.csv")
     assert list(motions.columns) == ["motion", "segments", "duration_s", "real_waypoints", "sim_steps"]
     assert list(motions.sim_steps) == [87, 94, 152, 153, 378, 460, 625]
@@ -206,7 +207,7 @@ def test_tiny_workflow_makes_every_table(tiny_run):
 
 
 def test_tiny_workflow_makes_figures(tiny_run):
-    figures = tiny_run / "results" / "figures"
+    figures = tiny_run / "results" / "twin-tiny" / "figures"
     for name in ("runs_L1", "runs_L2", "heightmaps_clay-flattening-cylinder-ood-0"):
         assert (figures / f"{name}.png").stat().st_size > 10_000
         assert (figures / f"{name}.pdf").stat().st_size > 1_000
@@ -215,3 +216,39 @@ def test_tiny_workflow_makes_figures(tiny_run):
 def test_rerun_of_a_finished_workflow_does_nothing(tiny_run):
     run = snakemake(tiny_run, "-n", "tables", "figures")
     assert run.returncode == 0 and "Nothing to be done" in run.stdout + run.stderr
+
+
+def _checksums(folder):
+    return {p.relative_to(folder): hashlib.sha256(p.read_bytes()).hexdigest() for p in folder.rglob("*") if p.is_file()}
+
+
+def test_a_users_raw_dataset_is_only_read_by_a_full_run(tiny_run, tmp_path):
+    """A user's captures under raw/<name>/ (here the tiny twin's, without its truth) identified with a config
+    that still has a twin section: the run reads them, leaves every byte as it was, writes nothing else under
+    raw/, and keeps its results, tables and logs under results/<name>/."""
+    raw = tmp_path / "raw" / "mine"
+    shutil.copytree(tiny_run / "results" / "twin-tiny" / "raw", raw, ignore=shutil.ignore_patterns("truth.json"))
+    before = _checksums(tmp_path / "raw")
+    config = edited_config(tmp_path, lambda c: c.pop("analyses"))
+    run = snakemake(tmp_path, "-j1", "tables", "--config", "dataset=mine", config=config)
+    assert run.returncode == 0, (run.stdout + run.stderr)[-3000:]
+    assert _checksums(tmp_path / "raw") == before
+    assert (tmp_path / "results" / "mine" / "tables" / "best_params.csv").is_file()
+    assert (tmp_path / "results" / "mine" / "logs" / "tables.log").is_file()
+    assert not (tmp_path / "results" / "twin-tiny").exists()
+
+
+def test_the_twin_is_generated_only_under_its_results_folder(tiny_run):
+    assert (tiny_run / "results" / "twin-tiny" / "raw" / "datapoints.csv").is_file()
+    assert not (tiny_run / "raw").exists()
+
+
+@pytest.mark.parametrize("key, value", [("results", ".."), ("results", "/tmp/x"), ("results", "/"),
+                                        ("results", "a/../../b"), ("dataset", ".."), ("dataset", "a/b")])
+def test_a_path_leaving_the_project_is_refused_at_start_up(tmp_path, key, value):
+    project = tmp_path / "project"
+    project.mkdir()
+    run = snakemake(project, "-n", "tables", "--config", f"{key}={value}")
+    assert run.returncode != 0
+    assert f"`{key}`" in run.stdout + run.stderr or f"'{key}'" in run.stdout + run.stderr
+    assert {p.name for p in tmp_path.iterdir()} == {"project"}

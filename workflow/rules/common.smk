@@ -11,6 +11,7 @@ from pathlib import Path
 import pandas as pd
 import yaml
 from snakemake.exceptions import WorkflowError
+from snakemake.logging import logger
 from snakemake.utils import validate
 
 from dpsi import datasets as dpsi_datasets
@@ -19,14 +20,34 @@ from dpsi.datapoints_table import TableError, check_table, read_table
 
 validate(config, "../schemas/config.schema.yaml")
 
-OUT = config["results"]
-"""Output root of this configuration: its results, tables, figures and logs."""
-RAW = f"raw/{config['dataset']}"
+PROJECT = Path(workflow.main_snakefile).parent
+SRC = PROJECT / "src"
+
+
+def inside_project(key):
+    """The config's relative path ``key``, refused at start-up unless it stays inside the project (the
+    working directory): results and raw data are written and read only there."""
+    value = config[key]
+    here = Path.cwd().resolve()
+    if Path(value).is_absolute() or here not in (here / value).resolve().parents:
+        raise WorkflowError(
+            f"config key `{key}`: {value!r} leaves the project folder {here}; give a path inside it, "
+            "e.g. `results` or `results/paper`"
+        )
+    return value
+
+
+OUT = inside_project("results")
+"""Output root of this configuration."""
+TWIN = "twin" in config and config["twin"]["name"] == config["dataset"]
+"""Whether the dataset is the synthetic twin of the config (generated), rather than a user's raw data."""
 RESULTS = f"{OUT}/{config['dataset']}"
-TABLES_DIR = f"{OUT}/tables"
-FIGURES_DIR = f"{OUT}/figures"
-LOGS = f"{OUT}/logs"
-SRC = Path(workflow.main_snakefile).parent / "src"
+"""Everything made from this dataset: prepared data, runs, tables, figures and logs."""
+RAW = f"{RESULTS}/raw" if TWIN else f"raw/{config['dataset']}"
+"""The raw dataset: the twin writes its own under the results, a user's under raw/ is only read."""
+TABLES_DIR = f"{RESULTS}/tables"
+FIGURES_DIR = f"{RESULTS}/figures"
+LOGS = f"{RESULTS}/logs"
 SCRIPTS = Path(workflow.main_snakefile).parent / "workflow" / "scripts"
 GPU = 1 if config.get("taichi_arch") == "cuda" else 0
 """GPUs a simulating job asks for."""
@@ -109,7 +130,7 @@ def figure_files(name, caption):
 def datapoints_table():
     """The datapoints table: planned by the twin config, or read from the raw dataset; checked at parse
     time (ids become file names, so an unsafe id must never reach a rule)."""
-    if "twin" in config:
+    if TWIN:
         plan = twin_plan.plan_from_config(config["twin"]["groups"])
         table = pd.DataFrame(twin_plan.plan_rows(plan))
         check_table(table.astype(str), "the twin's plan")
@@ -117,8 +138,8 @@ def datapoints_table():
     path = Path(RAW) / "datapoints.csv"
     if not path.is_file():
         raise WorkflowError(
-            f"{path} not found: put a raw dataset there (docs/raw-format.md) or give a `twin` "
-            "section in the config"
+            f"{path} not found: put a raw dataset there (docs/raw-format.md), or set `dataset` to "
+            "the name of the config's `twin` to generate a synthetic one"
         )
     try:
         return read_table(path)
@@ -216,7 +237,7 @@ def raw_config_files():
     """The raw dataset's table and layout (dataset.yaml, with the mesh files of its own effectors)."""
     layout = Path(f"{RAW}/dataset.yaml")
     files = [f"{RAW}/datapoints.csv"]
-    if "twin" in config or layout.is_file():
+    if TWIN or layout.is_file():
         files.append(str(layout))
     if layout.is_file():
         effectors = (yaml.safe_load(layout.read_text()) or {}).get("effectors") or {}
@@ -240,7 +261,7 @@ def raw_datapoint(wildcards):
 
 
 def truth_file():
-    return [f"{RAW}/truth.json"] if "twin" in config else []
+    return [f"{RAW}/truth.json"] if TWIN else []
 
 
 wildcard_constraints:
@@ -252,7 +273,25 @@ wildcard_constraints:
     dataset="[0-9a-z-]+",
 
 
-ANALYSES = config.get("analyses", {})
+def needs_truth(analysis, settings):
+    """Whether an analysis compares with, or starts from, the synthetic twin's ground truth."""
+    return analysis in ("identifiability", "materials") or "truth" in (
+        settings.get("fixed"),
+        settings.get("parameters"),
+    )
+
+
+ANALYSES = {
+    name: settings
+    for name, settings in config.get("analyses", {}).items()
+    if TWIN or not needs_truth(name, settings)
+}
+"""The configured analyses that this dataset allows (those needing the truth only on the twin)."""
+if set(config.get("analyses", {})) - set(ANALYSES):
+    logger.warning(
+        f"dataset {config['dataset']!r} is not the synthetic twin, so the analyses that need its ground "
+        f"truth are left out: {sorted(set(config.get('analyses', {})) - set(ANALYSES))}"
+    )
 ANALYSIS_TABLES = []
 ANALYSIS_FIGURES = []
 """Outputs of the analyses in the config; each analysis rule file adds its own, reporting.smk collects them."""
@@ -262,11 +301,6 @@ def parameter_source_inputs(source):
     """Files a parameter source (see dpsi.parameter_sources) is resolved from: the twin's truth for
     `truth`, the level-2 run summaries of the main sweep for `identified`."""
     if source == "truth":
-        if "twin" not in config:
-            raise WorkflowError(
-                "parameters `truth` need a synthetic twin: add a `twin` section to the config or choose "
-                "`hand-picked`, `identified` or explicit values"
-            )
         return truth_file()
     if source == "identified":
         if 2 not in IDENT["levels"]:

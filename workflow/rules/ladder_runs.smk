@@ -5,10 +5,6 @@ folders, its runs with their labels, and the tables that `identifiability` and `
 import itertools
 
 if "identifiability" in ANALYSES:
-    if "twin" not in config:
-        raise WorkflowError(
-            "analyses.identifiability needs a synthetic twin (the truth): add a `twin` section to the config"
-        )
     LADDER = ANALYSES["identifiability"]
     LADDER_ROOT = f"{RESULTS}/identifiability"
     LADDER_RUN = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"

@@ -4,11 +4,6 @@ recovered parameters against the twin's ground truth, and the runs over the iter
 
 if "materials" in ANALYSES:
     MATERIALS = ANALYSES["materials"]
-    if "twin" not in config:
-        raise WorkflowError(
-            "analysis materials compares with the ground truth of a synthetic twin: add a `twin` "
-            "section with groups of the materials to the config"
-        )
     MATERIALS_RUNS = analysis_runs(
         "materials",
         level=2,
