@@ -37,6 +37,7 @@ from dpsi.pointclouds import (CLOUD_SUFFIXES, MESH_SUFFIXES, TRANSFORM_SUFFIXES,
                               check_points, check_rigid, read_mesh, read_points, read_transform, write_points,
                               write_transform)
 from dpsi.reconstruction.meshing import is_watertight
+from dpsi.reconstruction.repair import repair_scan
 
 STATES = ("before", "after")
 EFFECTOR_KINDS = tuple(BUILT_IN)
@@ -124,11 +125,14 @@ def _fail(path: Path, problem: str):
 
 
 def read_closed_mesh(path: str | os.PathLike):
-    """The watertight mesh (m) in ``path``; :class:`RawDataError` naming the file if it is not closed."""
-    mesh = read_mesh(path)
+    """The watertight mesh (m) in ``path``, its small scan defects repaired and logged
+    (:func:`~dpsi.reconstruction.repair.repair_scan`); :class:`RawDataError` naming the file if it is not
+    closed even then."""
+    mesh, _ = repair_scan(read_mesh(path), str(path))
     if not is_watertight(mesh):
-        _fail(Path(path), "mesh is not watertight (every edge must join exactly two consistently wound faces); "
-                          "close its holes, or give the shape as a point cloud")
+        _fail(Path(path), "mesh is not watertight (every edge must join exactly two consistently wound faces), and "
+                          "mending it needs more than removing duplicated or collapsed faces, closing holes of a few "
+                          "triangles and turning flipped faces; close its holes, or give the shape as a point cloud")
     return mesh
 
 
