@@ -16,7 +16,7 @@ from dpsi.parameters import HAND_PICKED
 from dpsi.pointclouds import write_mesh, write_points
 from dpsi.prepare import surface_points
 
-KEYS = {"particles", "heightmap_mm", "pcd_cd", "prt_cd", "pcd_emd", "prt_emd", "params"}
+KEYS = {"particles", "heightmap_mm", "pcd_cd", "prt_cd", "pcd_emd", "prt_emd", "params", "repairs"}
 
 
 def _box(width: float, height: float) -> o3d.geometry.TriangleMesh:
@@ -45,7 +45,8 @@ def test_simulate_json_prints_the_documented_keys(shapes):
     result = json.loads(done.stdout)
     assert set(result) == KEYS
     assert 100 < result["particles"] < 1000
-    assert all(math.isfinite(result[k]) and result[k] > 0 for k in KEYS - {"params", "particles"})
+    assert all(math.isfinite(result[k]) and result[k] > 0 for k in KEYS - {"params", "particles", "repairs"})
+    assert result["repairs"] == []
     assert result["params"] == {**HAND_PICKED.as_dict(), "E": 40000.0, "nu": 0.3}
 
 
@@ -178,3 +179,51 @@ def test_ignored_or_non_finite_options_are_refused(capsys, shapes, tmp_path, com
     assert exit_.value.code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
+
+
+def test_a_known_parameter_is_held_through_the_run(shapes, tmp_path):
+    done = _run("identify", *shapes, "--loss", "heightmap", "--iterations", "2", "--initial", "hand-picked",
+                "--known", "rho=1500", "--out", str(tmp_path))
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["known"] == ["rho"]
+    assert summary["best"]["parameters"]["rho"] == summary["final"]["parameters"]["rho"] == 1500.0
+    assert summary["final"]["parameters"]["E"] != HAND_PICKED.E  # the others moved
+    assert "rho: 1500 kg/m^3" in done.stdout and "rho was held" in done.stdout
+
+
+def test_a_datapoints_file_with_two_motions_trains_on_both(shapes, tmp_path):
+    before, after = shapes[1], shapes[3]
+    table = tmp_path / "points.csv"
+    table.write_text(f"before, after, motion, effector\n{before},{after},poking-1,round\n"
+                     f"{before},{after},poking-2,cylinder\n")
+    done = _run("identify", "--datapoints", str(table), "--density", "1e7", "--loss", "prt_emd", "--iterations", "1",
+                "--initial", "hand-picked", "--out", str(tmp_path / "run"))
+    assert done.returncode == 0, done.stderr
+    training = json.loads((tmp_path / "run" / "summary.json").read_text())["training"]
+    assert [steps for _, _, steps in training] == [87, 94]  # poking-1 and poking-2 (SPEC §2)
+
+
+def test_a_datapoints_file_missing_a_column_is_named(capsys, tmp_path):
+    table = tmp_path / "points.csv"
+    table.write_text("before,after,motion\na.obj,b.obj,poking-1\n")
+    with pytest.raises(SystemExit):
+        main(["identify", "--datapoints", str(table), "--loss", "prt_emd", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert "points.csv" in err and "missing ['effector']" in err
+
+
+def test_a_repaired_before_mesh_is_reported(tmp_path):
+    box = o3d.geometry.TriangleMesh.create_box(0.03, 0.03, 0.025).translate((-0.015, -0.015, 0.0))
+    box = box.subdivide_midpoint(2)
+    faces = np.asarray(box.triangles).copy()
+    faces[3] = faces[20]  # one face listed twice where a triangle is missing, as in a published scan
+    broken = o3d.geometry.TriangleMesh(box.vertices, o3d.utility.Vector3iVector(faces))
+    write_mesh(tmp_path / "scan.obj", broken)
+    write_points(tmp_path / "after.ply", surface_points(_box(0.032, 0.021)))
+    done = _run("simulate", "--before", str(tmp_path / "scan.obj"), "--after", str(tmp_path / "after.ply"),
+                "--motion", "poking-1", "--effector", "round", "--density", "1e7", "--json")
+    assert done.returncode == 0, done.stderr
+    repairs = {r["what"]: r for r in json.loads(done.stdout)["repairs"]}
+    assert repairs["duplicated face(s) removed"]["count"] == 1
+    assert repairs["face(s) added to close holes"]["file"] == str(tmp_path / "scan.obj")

@@ -185,9 +185,19 @@ def test_tiny_workflow_makes_every_table(tiny_run):
     assert list(motions.sim_steps) == [87, 94, 152, 153, 378, 460, 625]
     best = pd.read_csv(tables / "best_params.csv")
     assert list(best.columns) == ["level", "loss", "dataset", "E", "nu", "rho", "yield_stress", "mu_table",
-                                  "mu_effector", "val_heightmap_mm"]
+                                  "mu_effector", "val_heightmap_mm", "hand_picked_mm", "no_motion_mm", "recommended"]
     assert set(best.loss) == {"prt_cd", "hand-picked"} and set(best.level) == {1, 2}
     assert best.drop(columns=["dataset"]).notna().all().all() and (best.val_heightmap_mm > 0).all()
+    hand = best[best.loss == "hand-picked"].set_index("level")
+    assert (hand.val_heightmap_mm == hand.hand_picked_mm).all() and (hand.no_motion_mm > hand.hand_picked_mm).all()
+    assert best.groupby("level").recommended.sum().tolist() == [1, 1]
+    generalisation = pd.read_csv(tables / "generalisation.csv")
+    assert list(generalisation.columns) == ["level", "loss", "dataset", "seed", "pair", "identified_mm",
+                                            "hand_picked_mm", "no_motion_mm", "change"]
+    # each run is tried on the clay train and validation datapoints of both levels it did not train on
+    assert sorted(generalisation.groupby("level").size()) == [3, 3]
+    assert generalisation.change.tolist() == pytest.approx(
+        ((generalisation.identified_mm - generalisation.hand_picked_mm) / generalisation.hand_picked_mm).tolist())
     ood = pd.read_csv(tables / "ood_heightmap.csv")
     assert list(ood.columns) == ["motion", "config", "loss", "dataset", "heightmap_mm"]
     assert set(ood.motion) == {"flattening"} and "hand-picked" in set(ood.loss)
@@ -200,7 +210,7 @@ def test_tiny_workflow_makes_every_table(tiny_run):
         ["level", "parameter"]).truth
     level = recovery.level.iloc[0]
     assert truth[(level, "E/rho")] == pytest.approx(truth[(level, "E")] / truth[(level, "rho")])
-    for name in ("motions", "parameters", "best_params", "ood_heightmap", "recovery_error"):
+    for name in ("motions", "parameters", "best_params", "generalisation", "ood_heightmap", "recovery_error"):
         assert (tables / f"{name}.md").read_text().count("|") > 10
         assert r"\toprule" in (tables / f"{name}.tex").read_text()
         assert (tables / f"{name}.csv.provenance.json").is_file()

@@ -109,6 +109,17 @@ def lame(E: float, nu: float) -> tuple[float, float]:
 HAND_PICKED = Parameters(E=3e4, nu=0.4, rho=1330.0, yield_stress=1e3, mu_table=0.7, mu_effector=0.7)
 """Literature values used as the baseline and as the good initial guess (SPEC §1)."""
 
+
+def at_level(params: Parameters, level: int) -> Parameters:
+    """``params`` as a run of ``level`` holds them: level 1 keeps the frictions at :data:`LEVEL1_FIXED`."""
+    return params.replace(**LEVEL1_FIXED) if level == 1 else params
+
+
+def hand_picked(level: int) -> Parameters:
+    """The literature values as a run of ``level`` starts from them."""
+    return at_level(HAND_PICKED, level)
+
+
 STIFFEST = Parameters(E=UPPER["E"], nu=UPPER["nu"], rho=LOWER["rho"], yield_stress=UPPER["yield_stress"],
                       mu_table=UPPER["mu_table"], mu_effector=UPPER["mu_effector"])
 """The corner of the range with the fastest waves: it sets the worst-case time step."""
@@ -131,5 +142,5 @@ def random_initial(seed: int, level: int) -> Parameters:
 
 __all__ = [
     "NAMES", "LOWER", "UPPER", "STEP_SIZE", "IDENTIFIED", "LEVEL1_FIXED", "SCALE_FREE", "scale_free", "UNITS",
-    "Parameters", "lame", "HAND_PICKED", "STIFFEST", "clip", "random_initial",
+    "Parameters", "lame", "HAND_PICKED", "at_level", "hand_picked", "STIFFEST", "clip", "random_initial",
 ]

@@ -15,7 +15,7 @@ from snakemake.logging import logger
 from snakemake.utils import validate
 
 from dpsi import datasets as dpsi_datasets
-from dpsi import twin_plan
+from dpsi import release_plan, twin_plan
 from dpsi.datapoints_table import TableError, check_table, read_table
 
 validate(config, "../schemas/config.schema.yaml")
@@ -41,10 +41,16 @@ OUT = inside_project("results")
 """Output root of this configuration."""
 TWIN = "twin" in config and config["twin"]["name"] == config["dataset"]
 """Whether the dataset is the synthetic twin of the config (generated), rather than a user's raw data."""
+RELEASE = "release" in config and config["release"]["name"] == config["dataset"]
+"""Whether the dataset is imported from the published real data (dpsi.release)."""
+if TWIN and RELEASE:
+    raise WorkflowError(
+        f"config: `twin` and `release` are both named {config['dataset']!r}; give them different names"
+    )
 RESULTS = f"{OUT}/{config['dataset']}"
 """Everything made from this dataset: prepared data, runs, tables, figures and logs."""
-RAW = f"{RESULTS}/raw" if TWIN else f"raw/{config['dataset']}"
-"""The raw dataset: the twin writes its own under the results, a user's under raw/ is only read."""
+RAW = f"{RESULTS}/raw" if TWIN or RELEASE else f"raw/{config['dataset']}"
+"""The raw dataset: the twin and the import write theirs under the results; a user's under raw/ is only read."""
 TABLES_DIR = f"{RESULTS}/tables"
 FIGURES_DIR = f"{RESULTS}/figures"
 LOGS = f"{RESULTS}/logs"
@@ -127,6 +133,19 @@ def figure_files(name, caption):
     return [png, f"{path}.pdf"]
 
 
+@functools.cache
+def released_pairs():
+    """The datapoints of the published real data that the config's `release` section imports, each with its
+    pair of mesh files; refused at start-up naming the source if there are none."""
+    try:
+        return release_plan.plan_rows(
+            config["release"]["source"],
+            release_plan.ImportTables.from_config(config["release"]),
+        )
+    except release_plan.ReleaseError as err:
+        raise WorkflowError(f"config `release`: {err}")
+
+
 def datapoints_table():
     """The datapoints table: planned by the twin config, or read from the raw dataset; checked at parse
     time (ids become file names, so an unsafe id must never reach a rule)."""
@@ -135,6 +154,8 @@ def datapoints_table():
         table = pd.DataFrame(twin_plan.plan_rows(plan))
         check_table(table.astype(str), "the twin's plan")
         return table
+    if RELEASE:
+        return pd.DataFrame([row for row, _ in released_pairs()])
     path = Path(RAW) / "datapoints.csv"
     if not path.is_file():
         raise WorkflowError(
@@ -156,16 +177,40 @@ def training_ids(level, dataset):
     return dpsi_datasets.select(TABLE, int(level), dataset)
 
 
-def validation_ids(level):
-    return dpsi_datasets.validation(TABLE, int(level))
+def validation_ids(level, dataset):
+    """The validation datapoints of a run on ``dataset``: the level's validation ones, or those of its
+    train datapoints the dataset leaves out (see dpsi.datasets.validation)."""
+    return dpsi_datasets.validation(
+        TABLE, int(level), training=training_ids(level, dataset)
+    )
+
+
+def run_datasets(level):
+    """The configured datasets of ``level``, `pairs` expanded to one dataset per train datapoint."""
+    return dpsi_datasets.expand_names(TABLE, int(level), IDENT["datasets"])
+
+
+def unseen_ids(level, dataset):
+    """The clay datapoints (either level) a run on ``dataset`` did not train on."""
+    return dpsi_datasets.unseen(TABLE, training_ids(level, dataset))
 
 
 def ood_ids():
     return dpsi_datasets.ood(TABLE)
 
 
+OFFSETS = IDENT.get("motion_offsets", False)
+"""Whether each datapoint's motion offset is registered from its dent before it is used (dpsi.motion_offsets)."""
+
+
 def prepared(ids):
-    return [f"{RESULTS}/prepared/{i}.npz" for i in ids]
+    """The datapoints ``ids`` as the sweep uses them: prepared, and registered if `motion_offsets` is on."""
+    return [f"{RESULTS}/{'registered' if OFFSETS else 'prepared'}/{i}.npz" for i in ids]
+
+
+def level_of(datapoint):
+    """The level of a datapoint in the table."""
+    return int(TABLE.set_index("id").loc[datapoint, "level"])
 
 
 MAIN_RUN = f"{RESULTS}/runs/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
@@ -174,12 +219,28 @@ MAIN_RUN = f"{RESULTS}/runs/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
 
 def runs(level=None, name="summary.json"):
     """``name`` (summary.json or log.csv) of every identification run (of one level if given)."""
-    return expand(
-        f"{MAIN_RUN}/{name}",
-        level=[level] if level else IDENT["levels"],
-        loss=IDENT["losses"],
-        dataset=IDENT["datasets"],
-        seed=IDENT["seeds"],
+    return [
+        path
+        for each in ([level] if level else IDENT["levels"])
+        for path in expand(
+            f"{MAIN_RUN}/{name}",
+            level=each,
+            loss=IDENT["losses"],
+            dataset=run_datasets(each),
+            seed=IDENT["seeds"],
+        )
+    ]
+
+
+def baselines():
+    """The baseline record of every (level, datapoint) that a run of the sweep validates on or did not see."""
+    return sorted(
+        {
+            f"{RESULTS}/baselines/L{level}/{i}.json"
+            for level in IDENT["levels"]
+            for dataset in run_datasets(level)
+            for i in validation_ids(level, dataset) + unseen_ids(level, dataset)
+        }
     )
 
 
@@ -197,11 +258,12 @@ def simulator_params():
 def for_each_run():
     """Fail at start-up, naming the datapoints, if a configured dataset cannot be formed."""
     for level in IDENT["levels"]:
-        validation_ids(level)
-        for dataset in IDENT["datasets"]:
-            training_ids(level, dataset)
-    if 2 in IDENT["levels"]:
-        ood_ids()
+        for dataset in run_datasets(level):
+            validation_ids(level, dataset)
+            if not re.fullmatch("[0-9a-z-]+", dataset):
+                raise ValueError(
+                    f"dataset {dataset!r}: ids of datasets may hold only lower-case letters, digits and '-'"
+                )
 
 
 try:
@@ -212,13 +274,20 @@ except ValueError as err:
     )
 
 
-OOD = 2 in IDENT["levels"]
+OOD = 2 in IDENT["levels"] and (TABLE.role == "ood").any()
 """Whether the out-of-distribution evaluation runs (it uses the level-2 parameters)."""
-TABLES = ["motions", "parameters", "best_params", "ood_heightmap", "recovery_error"]
+TABLES = [
+    "motions",
+    "parameters",
+    "best_params",
+    "generalisation",
+    "ood_heightmap",
+    "recovery_error",
+]
 OOD_SOURCES = [f"{RESULTS}/ood/hand-picked.json"] + expand(
     f"{RESULTS}/ood/{{loss}}/{{dataset}}.json",
     loss=IDENT["losses"],
-    dataset=IDENT["datasets"],
+    dataset=run_datasets(2) if OOD else [],
 )
 
 
@@ -230,6 +299,7 @@ def twin_settings():
         "dx": twin["dx"],
         "max_particles": twin.get("max_particles", 22000),
         "groups": [dict(sorted(group.items())) for group in twin["groups"]],
+        "motion_error": dict(sorted(twin.get("motion_error", {}).items())),
     }
 
 

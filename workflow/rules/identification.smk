@@ -15,7 +15,7 @@ RUN_ANALYSES = [a for a in ("materials", "minima", "heightmap_losses") if a in A
 rule identify:
     input:
         training=lambda w: prepared(training_ids(w.level, w.dataset)),
-        validation=lambda w: prepared(validation_ids(w.level)),
+        validation=lambda w: prepared(validation_ids(w.level, w.dataset)),
         truth=truth_file(),
         code=code("identify"),
     output:
@@ -72,14 +72,36 @@ if RUN_ANALYSES:
             simulator=simulator_params(),
 
 
-rule validate_hand_picked:
+rule baseline:
     input:
-        validation=lambda w: prepared(validation_ids(w.level)),
-        code=code("validate_hand_picked"),
+        datapoint=f"{RESULTS}/prepared/{{id}}.npz",
+        code=code("baseline"),
     output:
-        f"{RESULTS}/validation/L{{level}}/hand-picked.json",
+        f"{RESULTS}/baselines/L{{level}}/{{id}}.json",
     log:
-        log_file("validate/L{level}_hand-picked"),
+        log_file("baseline/L{level}_{id}"),
+    conda:
+        "../envs/dpsi.yaml"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
+        gpu=GPU,
+    params:
+        simulator=simulator_params(),
+    script:
+        "../scripts/baseline.py"
+
+
+rule unseen:
+    input:
+        summary=f"{MAIN_RUN}/summary.json",
+        datapoints=lambda w: prepared(unseen_ids(w.level, w.dataset)),
+        code=code("unseen"),
+    output:
+        f"{MAIN_RUN}/unseen.json",
+    log:
+        log_file("unseen/L{level}_{loss}_{dataset}_seed{seed}"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
@@ -90,4 +112,4 @@ rule validate_hand_picked:
     params:
         simulator=simulator_params(),
     script:
-        "../scripts/validate_hand_picked.py"
+        "../scripts/unseen.py"

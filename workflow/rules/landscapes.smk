@@ -8,15 +8,23 @@ if "landscapes" in ANALYSES:
     LANDSCAPES = ANALYSES["landscapes"]
     LANDSCAPE_PAIRS = {
         pair.name: pair
-        for pair in dpsi_landscapes.PAIRS
+        for pair in (
+            map(dpsi_landscapes.pair_by_name, LANDSCAPES["pairs"])
+            if "pairs" in LANDSCAPES
+            else dpsi_landscapes.PAIRS
+        )
         if pair.level in IDENT["levels"]
     }
+
+    def landscape_datasets(pair):
+        """The landscape's datasets at the pair's level, `pairs` expanded (dpsi.datasets.expand_names)."""
+        return dpsi_datasets.expand_names(TABLE, pair.level, LANDSCAPES["datasets"])
 
     try:
         LANDSCAPE_DATAPOINTS = {
             (name, dataset): training_ids(pair.level, dataset)
             for name, pair in LANDSCAPE_PAIRS.items()
-            for dataset in LANDSCAPES["datasets"]
+            for dataset in landscape_datasets(pair)
         }
     except ValueError as err:
         raise WorkflowError(
@@ -55,9 +63,9 @@ if "landscapes" in ANALYSES:
 
     rule landscape_figure:
         input:
-            landscapes=expand(
-                f"{RESULTS}/landscapes/{{{{pair}}}}/{{dataset}}.npz",
-                dataset=LANDSCAPES["datasets"],
+            landscapes=lambda w: expand(
+                f"{RESULTS}/landscapes/{w.pair}/{{dataset}}.npz",
+                dataset=landscape_datasets(LANDSCAPE_PAIRS[w.pair]),
             ),
             code=code("landscape_figure"),
         output:
@@ -73,7 +81,7 @@ if "landscapes" in ANALYSES:
             mem_mb=1000,
             runtime=5,
         params:
-            datasets=LANDSCAPES["datasets"],
+            datasets=lambda w: landscape_datasets(LANDSCAPE_PAIRS[w.pair]),
         script:
             "../scripts/landscape_figure.py"
 
