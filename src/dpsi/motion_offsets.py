@@ -10,8 +10,10 @@ e.g. hand-picked, parameters), draws the simulated and the scanned after states 
 finds the shift (dx, dy) of the scanned map that best matches the simulated imprint (every cell the motion
 moved by more than :data:`MOVED`), and the height difference dz of the dent floor (cells pressed down).
 The tool path is then moved by (dx, dy, dz) and the datapoint simulated again, until the offset changes
-by less than :data:`CONVERGED` (at most :data:`ROUNDS` times). The offset is a translation of the whole
-path; a yaw error is not estimated.
+by less than :data:`CONVERGED` (at most :data:`ROUNDS` simulations). Of the paths simulated, the planned one
+included, the one whose after state is closest to the scan by the height-map distance is kept: where the
+dent does not show where the tool went (a flat press wider than the lump), the planned path stays. The
+offset is a translation of the whole path; a yaw error is not estimated.
 
 Because the dent is registered before identification and at fixed parameters, the offset is not traded
 against the material during identification: depth is explained by the path, the material by the shape.
@@ -29,8 +31,9 @@ import numpy as np
 from scipy import ndimage
 
 from dpsi.datapoint import Datapoint
-from dpsi.heightmap import SIZE, height_map
+from dpsi.heightmap import SIZE, height_map, heightmap_distance_mm
 from dpsi.identification import scene
+from dpsi.losses import simulated_heightmap
 from dpsi.parameters import Parameters
 from dpsi.simulation import Simulator
 
@@ -93,30 +96,36 @@ def imprint_shift(before: np.ndarray, simulated: np.ndarray, scanned: np.ndarray
 
 @dataclass(frozen=True)
 class Registration:
-    """A datapoint's motion offset (m, (3,)), the offsets after each round, and the rounds simulated."""
+    """A datapoint's motion offset (m, (3,)): of the offsets simulated (the planned path first, then one per
+    round), the one whose after state is closest to the scanned one by the height-map distance; each with
+    that distance (mm)."""
 
     id: str
     offset: np.ndarray
-    history: tuple[tuple[float, float, float], ...]
+    tried: tuple[tuple[tuple[float, float, float], float], ...]
 
     def as_dict(self) -> dict:
-        return {"id": self.id, "offset_m": self.offset.tolist(), "rounds": [list(h) for h in self.history]}
+        return {"id": self.id, "offset_m": self.offset.tolist(),
+                "tried": [{"offset_m": list(o), "heightmap_mm": mm} for o, mm in self.tried]}
 
 
 def register(simulator: Simulator, dp: Datapoint, params: Parameters) -> Registration:
-    """The motion offset of ``dp`` (see module doc), simulated with ``params``; logged."""
+    """The motion offset of ``dp`` (see module doc), simulated with ``params``; logged. The planned path
+    is one of the candidates, so registration never moves a datapoint's path where it fits its scan worse."""
     before = fine_map(dp.particles, dp)
     scanned = fine_map(dp.prt_target, dp)
-    offset, history = np.zeros(3), []
+    offset, tried = np.zeros(3), []
     for _ in range(ROUNDS):
         final = simulator.forward(scene(shifted(dp, offset)), params, keep_substeps=False)
+        distance = heightmap_distance_mm(simulated_heightmap(final, dp.heightmap_target()), dp.heightmap)
+        tried.append((tuple(float(v) for v in offset), float(distance)))
         step = imprint_shift(before, fine_map(final, dp), scanned)
-        offset = offset + step
-        history.append(tuple(float(v) for v in offset))
         if np.linalg.norm(step) < CONVERGED:
             break
-    LOG.info("%s: motion offset (%.2f, %.2f, %.2f) mm after %d simulation(s)", dp.id, *(offset * 1e3), len(history))
-    return Registration(dp.id, offset, tuple(history))
+        offset = offset + step
+    best = np.array(min(tried, key=lambda t: t[1])[0])
+    LOG.info("%s: motion offset (%.2f, %.2f, %.2f) mm of %d simulated", dp.id, *(best * 1e3), len(tried))
+    return Registration(dp.id, best, tuple(tried))
 
 
 __all__ = ["CELL", "MOVED", "SEARCH", "STEP", "ROUNDS", "CONVERGED", "shifted", "fine_map", "imprint_shift",

@@ -185,9 +185,14 @@ def validation_ids(level, dataset):
     )
 
 
+def datasets_at(level, names):
+    """The datasets ``names`` at ``level``, `pairs` expanded to one dataset per train datapoint."""
+    return dpsi_datasets.expand_names(TABLE, int(level), names)
+
+
 def run_datasets(level):
-    """The configured datasets of ``level``, `pairs` expanded to one dataset per train datapoint."""
-    return dpsi_datasets.expand_names(TABLE, int(level), IDENT["datasets"])
+    """The main sweep's datasets at ``level``."""
+    return datasets_at(level, IDENT["datasets"])
 
 
 def unseen_ids(level, dataset):

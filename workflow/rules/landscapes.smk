@@ -16,15 +16,11 @@ if "landscapes" in ANALYSES:
         if pair.level in IDENT["levels"]
     }
 
-    def landscape_datasets(pair):
-        """The landscape's datasets at the pair's level, `pairs` expanded (dpsi.datasets.expand_names)."""
-        return dpsi_datasets.expand_names(TABLE, pair.level, LANDSCAPES["datasets"])
-
     try:
         LANDSCAPE_DATAPOINTS = {
             (name, dataset): training_ids(pair.level, dataset)
             for name, pair in LANDSCAPE_PAIRS.items()
-            for dataset in landscape_datasets(pair)
+            for dataset in datasets_at(pair.level, LANDSCAPES["datasets"])
         }
     except ValueError as err:
         raise WorkflowError(
@@ -65,7 +61,9 @@ if "landscapes" in ANALYSES:
         input:
             landscapes=lambda w: expand(
                 f"{RESULTS}/landscapes/{w.pair}/{{dataset}}.npz",
-                dataset=landscape_datasets(LANDSCAPE_PAIRS[w.pair]),
+                dataset=datasets_at(
+                    LANDSCAPE_PAIRS[w.pair].level, LANDSCAPES["datasets"]
+                ),
             ),
             code=code("landscape_figure"),
         output:
@@ -81,7 +79,9 @@ if "landscapes" in ANALYSES:
             mem_mb=1000,
             runtime=5,
         params:
-            datasets=lambda w: landscape_datasets(LANDSCAPE_PAIRS[w.pair]),
+            datasets=lambda w: datasets_at(
+                LANDSCAPE_PAIRS[w.pair].level, LANDSCAPES["datasets"]
+            ),
         script:
             "../scripts/landscape_figure.py"
 
