@@ -5,6 +5,7 @@ library is imported here (no Taichi, Open3D or PyMeshLab), so that parsing the w
 import ast
 import functools
 import itertools
+import os
 import re
 from pathlib import Path
 
@@ -55,8 +56,13 @@ TABLES_DIR = f"{RESULTS}/tables"
 FIGURES_DIR = f"{RESULTS}/figures"
 LOGS = f"{RESULTS}/logs"
 SCRIPTS = Path(workflow.main_snakefile).parent / "workflow" / "scripts"
-GPU = 1 if config.get("taichi_arch") == "cuda" else 0
-"""GPUs a simulating job asks for."""
+GPU_GRES = (
+    f"{os.environ.get('DPSI_GPU_GRES', 'gpu')}:1"
+    if config.get("taichi_arch") == "cuda"
+    else None
+)
+"""The GPU a simulating job asks for, as a generic resource (SLURM's --gres): one `gpu`, or one of the
+name in the environment variable DPSI_GPU_GRES (such as gpu:a100); none (None) on the CPU."""
 
 
 def _module_file(name):

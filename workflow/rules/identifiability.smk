@@ -29,7 +29,7 @@ if "identifiability" in ANALYSES:
         resources:
             mem_mb=2000,
             runtime=10,
-            gpu=GPU,
+            gres=GPU_GRES,
         params:
             material=lambda w: TABLE.set_index("id").loc[w.id, "material"],
             simulator=simulator_params(),
@@ -144,7 +144,7 @@ if "identifiability" in ANALYSES:
         resources:
             mem_mb=2000,
             runtime=20,
-            gpu=GPU,
+            gres=GPU_GRES,
         params:
             simulator=simulator_params(),
         script:
@@ -222,7 +222,7 @@ if "identifiability" in ANALYSES:
             mem_mb=3000,
             # minutes: 36 simulations per datapoint, 1-5 s each on a CPU (flattening the longest)
             runtime=lambda w: 10 + 4 * len(ladder_training_ids(1, w.dataset)),
-            gpu=GPU,
+            gres=GPU_GRES,
         params:
             losses=LADDER["losses"],
             simulator=simulator_params(),

@@ -29,7 +29,7 @@ rule identify:
     resources:
         mem_mb=3000,
         runtime=720,
-        gpu=GPU,
+        gres=GPU_GRES,
     params:
         iterations=IDENT["iterations"],
         initial=IDENT.get("initial", "random"),
@@ -108,7 +108,7 @@ rule unseen:
     resources:
         mem_mb=3000,
         runtime=60,
-        gpu=GPU,
+        gres=GPU_GRES,
     params:
         simulator=simulator_params(),
     script:

@@ -48,7 +48,7 @@ if "landscapes" in ANALYSES:
             + len(LANDSCAPE_DATAPOINTS[w.pair, w.dataset])
             * LANDSCAPES["resolution"] ** 2
             // 2,
-            gpu=GPU,
+            gres=GPU_GRES,
         params:
             resolution=LANDSCAPES["resolution"],
             losses=LANDSCAPES["losses"],
