@@ -25,12 +25,13 @@ INTERVAL_S = 0.2
 """Seconds between samples of the process tree."""
 
 
-def measure(command: list[str], solver: str = "cbc") -> dict:
-    """Run ``command`` to its end; CPU seconds of its own process, of its reaped children and of the
-    children named like ``solver``, its wall seconds and exit code."""
+def measure(command: list[str], solver: str = "cbc", stdout=None) -> dict:
+    """Run ``command`` to its end (its standard output to the file ``stdout``, if given); CPU seconds of
+    its own process, of its reaped children and of the children named like ``solver``, its wall seconds
+    and exit code."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.monotonic()
-    process = subprocess.Popen(command)
+    process = subprocess.Popen(command, stdout=stdout)
     main = psutil.Process(process.pid)
     own = 0.0
     solver_seen: dict[int, float] = {}

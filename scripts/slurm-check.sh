@@ -66,6 +66,13 @@ install_packages() {
 
 stop_services() {
     local i name pid
+    if [ -f "$RUN/slurmctld.pid" ] && kill -0 "$(cat "$RUN/slurmctld.pid")" 2>/dev/null; then
+        SLURM_CONF=$ETC/slurm.conf scancel -u "$(id -un)" 2>/dev/null || true  # jobs outlive slurmd
+        for _ in $(seq 60); do
+            [ -z "$(SLURM_CONF=$ETC/slurm.conf squeue -h 2>/dev/null)" ] && break
+            sleep 1
+        done
+    fi
     for ((i = ${#SERVICES[@]} - 1; i >= 0; i--)); do
         name=${SERVICES[i]}
         [ -f "$RUN/$name.pid" ] || continue
@@ -236,9 +243,10 @@ main() {
 
     say "jobs of the SLURM run:"
     "$PYTHON" scripts/slurm_check.py jobs --name "$(slurm_run_id "$SCRATCH/slurm.log")" --state COMPLETED \
-        --json "$SCRATCH/slurm-jobs.json"
+        --json "$SCRATCH/slurm-jobs.json" || fail "not every job of the SLURM run COMPLETED"
     say "tables, SLURM run against the local run:"
-    "$PYTHON" scripts/slurm_check.py compare "$SCRATCH/local-run" "$SCRATCH/slurm-run"
+    "$PYTHON" scripts/slurm_check.py compare "$SCRATCH/local-run" "$SCRATCH/slurm-run" ||
+        fail "the SLURM run's tables differ from the local run's"
     say "Snakemake's own CPU time:"
     "$PYTHON" scripts/slurm_check.py share --local "$SCRATCH/local.cpu.json" \
         --slurm "$SCRATCH/slurm.cpu.json" --slurm-jobs "$SCRATCH/slurm-jobs.json"
@@ -255,8 +263,9 @@ main() {
     grep -rq "more than the simulator's max_particles=100" "$SCRATCH/slurm-run" --include='*.log' ||
         fail "no job log holds the error of the bad configuration"
     say "jobs of the run with a bad value (max_particles: 100):"
-    "$PYTHON" scripts/slurm_check.py jobs --name "$(slurm_run_id "$SCRATCH/bad.log")" --state FAILED
+    "$PYTHON" scripts/slurm_check.py jobs --name "$(slurm_run_id "$SCRATCH/bad.log")" --state FAILED ||
+        fail "not every job of the run with a bad value ended FAILED"
     say "passed: every job of the SLURM run COMPLETED, its tables match the local run's, the bad run FAILED"
 }
 
-main "$@"
+if [ "${BASH_SOURCE[0]}" = "$0" ]; then main "$@"; exit; fi   # sourced: only the functions
