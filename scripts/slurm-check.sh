@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The cluster path, run for real (docs/cluster.md): a single-node SLURM cluster from Debian's packages
 # (munge, MariaDB, slurmdbd, slurmctld, slurmd) on this machine runs the workflow through
-# `snakemake --profile profiles/slurm` on the tiny test configuration, and the check then
+# `snakemake --profile profiles/slurm` on a small test configuration, and the check then
 #   - requires every job of the run to have ended COMPLETED in sacct,
 #   - compares the run's tables with those of a local `snakemake -j1` run of the same configuration,
 #   - runs a copy of the configuration with a bad value, whose jobs must end FAILED in sacct and whose
@@ -14,15 +14,16 @@
 #
 # Settings (environment): DPSI_SLURM_SCRATCH, the folder for everything the check writes (default
 # /tmp/dpsi-slurm-check, emptied at the start); DPSI_SLURM_CONFIG, the workflow configuration (default
-# tests/data/tiny.yaml); DPSI_SLURM_TARGET (default tables); DPSI_SLURM_PORT, the first of the four TCP
-# ports on 127.0.0.1 the daemons use (default 16817). Besides the scratch folder it writes only the
-# symbolic link /etc/slurm/slurm.conf to its configuration (the jobs' own srun calls read that path),
-# removed on exit, and refuses to run if that path is anything else.
+# tests/data/cluster.yaml, 26 jobs; tests/data/tiny.yaml runs every rule, 96 jobs); DPSI_SLURM_TARGET
+# (default tables); DPSI_SLURM_PORT, the first of the four TCP ports on 127.0.0.1 the daemons use (default
+# 16817). Besides the scratch folder it writes only the symbolic link /etc/slurm/slurm.conf to its
+# configuration (the jobs' own srun calls read that path), removed on exit, and refuses to run if that
+# path is anything else.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$PWD
 SCRATCH=${DPSI_SLURM_SCRATCH:-/tmp/dpsi-slurm-check}
-CONFIG=$(realpath "${DPSI_SLURM_CONFIG:-tests/data/tiny.yaml}")
+CONFIG=$(realpath "${DPSI_SLURM_CONFIG:-tests/data/cluster.yaml}")
 TARGET=${DPSI_SLURM_TARGET:-tables}
 PORT=${DPSI_SLURM_PORT:-16817}
 CLUSTER=dpsicheck
