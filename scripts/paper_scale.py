@@ -60,13 +60,15 @@ SCALE = {"twin_datapoint": 19.0, "other": 4.0}
 """The tiny run's CPU time times this: the twin's datapoints have 12.5 × the particles (1.5e8 against
 1.2e7 per m³) and 1.5 × the substeps (4 mm cells against 6 mm); the other rules handle 4 × the particles
 (reconstruction at 4e7 against 1e7 per m³)."""
+UNMEASURED_S = 60.0
+"""CPU seconds assumed in the tiny run for a rule it did not have (its jobs took 10-20 s, 57 s the longest)."""
 MEASURED_KIN = {"poking-1": "poking-1", "poking-2": "poking-1", "poking-shifting-1": "poking-shifting-1",
                 "poking-shifting-2": "poking-shifting-1", "flattening": "flattening",
                 "triple-poking": "flattening", "poking-180-rotating": "flattening"}
 """Each motion's measured motion of the same kind in the cost table."""
 IDENTIFICATION = {"identify", "identify_analysis", "identify_ladder"}
 ONE_FORWARD = {"validate_hand_picked", "ood_identified", "ood_hand_picked", "ladder_same_model",
-               "ladder_reference", "ladder_reconstructed_twin"}
+               "ladder_reference"}
 STAGES = [
     {"twin_table", "twin_datapoint", "check_raw", "fuse", "mesh", "fill", "targets", "trajectory", "prepare"},
     None,  # everything not named in another stage
@@ -78,17 +80,20 @@ STAGES = [
 
 
 def dry_run_jobs(text: str) -> list[dict]:
-    """Each non-local job of a `snakemake -n` output: its rule and its prepared datapoints (ids)."""
+    """Each job of a `snakemake -n` output that makes files and is not a local rule: its rule and its
+    prepared datapoints (ids)."""
     jobs, job = [], None
     for line in text.splitlines():
         start = re.match(r"(local)?rule (\w+):", line)
         if start:
-            job = None if start[1] else {"rule": start[2], "datapoints": []}
+            job = None if start[1] else {"rule": start[2], "datapoints": [], "output": False}
             if job:
                 jobs.append(job)
         elif job and line.strip().startswith("input:"):
             job["datapoints"] = re.findall(r"prepared/([\w.+-]+)\.npz", line)
-    return jobs
+        elif job and line.strip().startswith("output:"):
+            job["output"] = True
+    return [j for j in jobs if j["output"]]
 
 
 def motion_of(datapoint: str) -> str:
@@ -131,7 +136,7 @@ def job_cpu_seconds(job: dict, passes: dict, tiny: dict[str, float], cost: pd.Da
         return base + COST_PASSES * COST_DENSITY_FACTOR * (lowest.forward_s + lowest.backward_s).mean()
     if rule in ONE_FORWARD:
         return base + forward(datapoints)
-    return tiny.get(rule, 60.0) * SCALE.get(rule, SCALE["other"])
+    return tiny.get(rule, UNMEASURED_S) * SCALE.get(rule, SCALE["other"])
 
 
 def makespan(durations: list[float], slots: int) -> float:

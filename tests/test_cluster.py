@@ -166,3 +166,37 @@ def test_bad_config_passes_the_schema_and_refuses_every_datapoint(tmp_path):
     assert yaml.safe_load(bad.read_text())["simulator"]["max_particles"] == 100
     run = snakemake(tmp_path, "-n", "tables", config=bad)  # the schema accepts it: jobs fail, not start-up
     assert run.returncode == 0, run.stderr[-2000:]
+
+
+paper_scale = load_script("paper_scale")
+
+DRY_RUN = """\
+rule identify:
+    input: results/p/twin/prepared/clay-poking-1-round-train-0.npz, results/p/twin/prepared/clay-poking-2-rectangle-train-1.npz, results/p/twin/prepared/clay-poking-2-round-validation-0.npz, src/dpsi/x.py
+    output: results/p/twin/runs/L1/prt_cd/6-mix/seed0/summary.json
+    resources: tmpdir=/tmp, runtime=720, mem_mb=3000
+
+rule fuse:
+    input: results/p/twin/raw/clay-poking-1-round-train-0
+    output: results/p/twin/fused/clay-poking-1-round-train-0_after.npy
+
+localrule all:
+    input: results/p/twin/tables/motions.csv
+"""
+
+
+def test_paper_scale_models_an_identification_run_from_its_datapoints_and_the_passes():
+    jobs = paper_scale.dry_run_jobs(DRY_RUN)
+    assert [j["rule"] for j in jobs] == ["identify", "fuse"]
+    assert paper_scale.motion_of("clay-poking-shifting-2-round-train-0") == "poking-shifting-2"
+    cost = pd.DataFrame({"motion": ["poking-1", "poking-shifting-1", "flattening"], "density": [4e7] * 3,
+                         "forward_s": [1.0, 2.0, 5.0], "backward_s": [2.0, 4.0, 10.0]})
+    passes = paper_scale.pass_seconds(cost)
+    poking_2 = 94 / 87  # steps of poking-2 against poking-1's
+    assert passes["poking-2"] == pytest.approx((poking_2, 2 * poking_2))
+    tiny = {"identify": 50.0, "fuse": 13.0}
+    # 100 iterations × (forward + backward of both training datapoints + forward of the validation one)
+    expected = 50 + 100 * (3.0 + 3 * poking_2 + poking_2)
+    assert paper_scale.job_cpu_seconds(jobs[0], passes, tiny, cost) == pytest.approx(expected)
+    assert paper_scale.job_cpu_seconds(jobs[1], passes, tiny, cost) == pytest.approx(13.0 * 4)
+    assert paper_scale.makespan([5, 4, 3, 3, 1], 2) == 8  # 5+3 and 4+3+1
