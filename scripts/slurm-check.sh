@@ -20,7 +20,7 @@
 # configuration (the jobs' own srun calls read that path), removed on exit, and refuses to run if that
 # path is anything else.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
 ROOT=$PWD
 SCRATCH=${DPSI_SLURM_SCRATCH:-/tmp/dpsi-slurm-check}
 CONFIG=$(realpath "${DPSI_SLURM_CONFIG:-tests/data/cluster.yaml}")
@@ -252,21 +252,20 @@ main() {
     "$PYTHON" scripts/slurm_check.py share --local "$SCRATCH/local.cpu.json" \
         --slurm "$SCRATCH/slurm.cpu.json" --slurm-jobs "$SCRATCH/slurm-jobs.json"
 
-    # A bad value that passes the schema: every simulator run refuses the datapoints (more particles than
-    # max_particles). In the finished run's folder only the hand-picked validation is redone.
+    # A bad value that passes the schema: identification refuses the datapoints (more particles than
+    # max_particles). In the finished run's folder only the jobs with simulator settings are redone.
     "$PYTHON" scripts/slurm_check.py bad-config "$CONFIG" "$SCRATCH/bad.yaml"
-    if measured bad "$SCRATCH/slurm-run" "$SCRATCH/bad.yaml" "${slurm_args[@]}" \
-        --until validate_hand_picked "$TARGET"; then
+    if measured bad "$SCRATCH/slurm-run" "$SCRATCH/bad.yaml" "${slurm_args[@]}" "$TARGET"; then
         fail "the run with the bad configuration succeeded"
     fi
-    grep -q "Error in rule validate_hand_picked" "$SCRATCH/bad.log" ||
+    grep -q "Error in rule identify" "$SCRATCH/bad.log" ||
         fail "Snakemake did not report the failing rule (see $SCRATCH/bad.log)"
     grep -rq "more than the simulator's max_particles=100" "$SCRATCH/slurm-run" --include='*.log' ||
         fail "no job log holds the error of the bad configuration"
-    say "jobs of the run with a bad value (max_particles: 100):"
-    "$PYTHON" scripts/slurm_check.py jobs --name "$(slurm_run_id "$SCRATCH/bad.log")" --state FAILED ||
-        fail "not every job of the run with a bad value ended FAILED"
-    say "passed: every job of the SLURM run COMPLETED, its tables match the local run's, the bad run FAILED"
+    say "jobs of the run with a bad value (simulator.max_particles: 100):"
+    "$PYTHON" scripts/slurm_check.py jobs --name "$(slurm_run_id "$SCRATCH/bad.log")" --rule identify \
+        --state FAILED || fail "the identification jobs of the run with a bad value did not end FAILED"
+    say "passed: every job of the SLURM run COMPLETED, its tables match the local run's, the bad run's identification FAILED"
 }
 
 if [ "${BASH_SOURCE[0]}" = "$0" ]; then main "$@"; exit; fi   # sourced: only the functions

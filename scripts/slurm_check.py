@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """The checks of scripts/slurm-check.sh that read files and sacct (docs/cluster.md).
 
-    slurm_check.py jobs --name RUN_ID [--state COMPLETED] [--json FILE]
+    slurm_check.py jobs --name RUN_ID [--state COMPLETED [--rule RULE]] [--json FILE]
         each job of a Snakemake SLURM run (the executor plugin names its jobs after the run's id) with its
         SLURM id, rule, state, elapsed time, CPU time and peak memory, from sacct; a summary per rule; exits
-        1 unless every job ended in --state
+        1 unless every job (of --rule, of which there must be one) ended in --state
     slurm_check.py compare FOLDER_A FOLDER_B
         the tables (every tables/*.csv below each folder) of two runs of one configuration: equal, or equal
         to pytest.approx's default tolerance; measured figures (the cost table's timings) are left out
@@ -128,7 +128,13 @@ def jobs_command(args) -> int:
           f"largest peak memory {jobs.max_rss_mib.max():.0f} MiB; states: {jobs.state.value_counts().to_dict()}")
     if args.json:
         Path(args.json).write_text(jobs.to_json(orient="records", indent=1))
-    others = jobs[jobs.state != args.state] if args.state else jobs.iloc[:0]
+    if not args.state:
+        return 0
+    checked = jobs[jobs.rule == args.rule] if args.rule else jobs
+    if checked.empty:
+        print(f"no job of rule {args.rule} in the run", file=sys.stderr)
+        return 1
+    others = checked[checked.state != args.state]
     if len(others):
         print(f"jobs not {args.state}: {', '.join(others.job_id + ' ' + others.state)}", file=sys.stderr)
         return 1
@@ -230,6 +236,7 @@ def main(argv: list[str] | None = None) -> int:
     jobs = commands.add_parser("jobs")
     jobs.add_argument("--name", required=True)
     jobs.add_argument("--state")
+    jobs.add_argument("--rule")
     jobs.add_argument("--json")
     compare = commands.add_parser("compare")
     compare.add_argument("a")
