@@ -255,7 +255,7 @@ main() {
     # A bad value that passes the schema: identification refuses the datapoints (more particles than
     # max_particles). In the finished run's folder only the jobs with simulator settings are redone.
     "$PYTHON" scripts/slurm_check.py bad-config "$CONFIG" "$SCRATCH/bad.yaml"
-    if measured bad "$SCRATCH/slurm-run" "$SCRATCH/bad.yaml" "${slurm_args[@]}" "$TARGET"; then
+    if measured bad "$SCRATCH/slurm-run" "$SCRATCH/bad.yaml" "${slurm_args[@]}" --keep-going "$TARGET"; then
         fail "the run with the bad configuration succeeded"
     fi
     grep -q "Error in rule identify" "$SCRATCH/bad.log" ||

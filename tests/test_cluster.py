@@ -91,7 +91,7 @@ def test_every_job_asks_for_memory_and_time_and_for_a_gpu_only_on_cuda(tmp_path)
     cuda.write_text(yaml.safe_dump(config))
     jobs = dry_run_jobs(tmp_path, cuda, DPSI_GPU_GRES="gpu:a100")
     asking = {rule for rule, resources in jobs.items() if all("gres=gpu:a100:1" in r for r in resources)}
-    assert {"identify", "validate_hand_picked", "ood_identified", "cost_measure", "landscape"} <= asking
+    assert {"identify", "baseline", "ood_identified", "cost_measure", "landscape"} <= asking
     assert not {"fuse", "mesh", "twin_datapoint", "make_tables"} & asking  # no simulation, no GPU
 
 

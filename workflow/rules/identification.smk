@@ -86,7 +86,7 @@ rule baseline:
     resources:
         mem_mb=3000,
         runtime=30,
-        gpu=GPU,
+        gres=GPU_GRES,
     params:
         simulator=simulator_params(),
     script:

@@ -156,7 +156,7 @@ rule register:
     resources:
         mem_mb=3000,
         runtime=30,
-        gpu=GPU,
+        gres=GPU_GRES,
     params:
         level=lambda w: level_of(w.id),
         simulator=simulator_params(),
