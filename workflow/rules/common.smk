@@ -5,6 +5,7 @@ library is imported here (no Taichi, Open3D or PyMeshLab), so that parsing the w
 import ast
 import functools
 import itertools
+import math
 import os
 import re
 from pathlib import Path
@@ -18,6 +19,7 @@ from snakemake.utils import validate
 from dpsi import datasets as dpsi_datasets
 from dpsi import release_plan, twin_plan
 from dpsi.datapoints_table import TableError, check_table, read_table
+from dpsi.motions import MOTIONS
 
 validate(config, "../schemas/config.schema.yaml")
 
@@ -253,6 +255,14 @@ def baselines():
             for i in validation_ids(level, dataset) + unseen_ids(level, dataset)
         }
     )
+
+
+def run_minutes(ids, iterations):
+    """Time limit (min) of an identification run on the datapoints ``ids`` (training and validation): ten for
+    start-up and a minute per 100 simulated steps of each datapoint at every iteration, about three times
+    a poking-shifting pass at 5 mm on one core (docs/benchmarks.md)."""
+    steps = sum(MOTIONS[m].sim_steps for m in TABLE.set_index("id").motion[list(ids)])
+    return 10 + math.ceil(iterations * steps / 100)
 
 
 def simulator_params():

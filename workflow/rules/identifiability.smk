@@ -90,6 +90,14 @@ if "identifiability" in ANALYSES:
             log_file("identifiability/{rung}_L{level}_{loss}_{dataset}_seed{seed}"),
         wildcard_constraints:
             rung="|".join(RUNGS),
+        resources:
+            mem_mb=3000,
+            runtime=lambda w: run_minutes(
+                ladder_training_ids(w.level, w.dataset)
+                + ladder_validation_ids(w.level, w.dataset),
+                run_iterations(w.rung, w.dataset),
+            ),
+            gres=GPU_GRES,
         params:
             iterations=lambda w: run_iterations(w.rung, w.dataset),
             initial=LADDER["initial"],

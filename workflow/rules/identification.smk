@@ -28,7 +28,10 @@ rule identify:
     threads: 1
     resources:
         mem_mb=3000,
-        runtime=720,
+        runtime=lambda w: run_minutes(
+            training_ids(w.level, w.dataset) + validation_ids(w.level, w.dataset),
+            IDENT["iterations"],
+        ),
         gres=GPU_GRES,
     params:
         iterations=IDENT["iterations"],
@@ -64,6 +67,14 @@ if RUN_ANALYSES:
             analysis="|".join(RUN_ANALYSES),
             material="[a-z]+",
             start="random|hand-picked",
+        resources:
+            mem_mb=3000,
+            runtime=lambda w: run_minutes(
+                dpsi_datasets.select(TABLE, int(w.level), w.dataset, w.material)
+                + dpsi_datasets.validation(TABLE, int(w.level), w.material),
+                ANALYSES[w.analysis]["iterations"],
+            ),
+            gres=GPU_GRES,
         params:
             iterations=lambda w: ANALYSES[w.analysis]["iterations"],
             initial=lambda w: w.start,
