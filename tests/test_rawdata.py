@@ -84,6 +84,14 @@ def _nan_vertex(path):
     return path
 
 
+def _face_out_of_range(path):
+    lines = path.read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("f "))
+    lines[first] = "f 1 2 100000"  # crashed PyMeshLab (exit 139)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 BAD = {
     "missing transform": (lambda r: (r / "dp1/before/view_1.transform.txt").unlink() or r / "dp1/before/view_1.ply",
                           "transform"),
@@ -95,6 +103,8 @@ BAD = {
                                                  "property float z\nend_header\n0 0 0\n1 0 0\n"), "declares 3 rows"),
     "truncated binary mesh": (lambda r: _truncate(r / "dp2/after_mesh.ply", keep=0.9), "truncated PLY file"),
     "NaN vertex in an OBJ mesh": (lambda r: _nan_vertex(r / "dp2/before_mesh.obj"), r"line \d+: vertex 'nan"),
+    "face index out of range": (lambda r: _face_out_of_range(r / "dp2/before_mesh.obj"),
+                                "face refers to vertex 100000"),
     "pickled npy": (lambda r: np.save(r / "dp1/after_fused.npy", np.array([{}], dtype=object), allow_pickle=True)
                     or r / "dp1/after_fused.npy", "not a numeric .npy array"),
     "malformed npy": (lambda r: _corrupt(r / "dp1/after_fused.npy", "not an array"), "not a numeric .npy array"),
