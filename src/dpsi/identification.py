@@ -41,7 +41,7 @@ import pandas as pd
 from dpsi.datapoint import Datapoint
 from dpsi.losses import LOSSES, VALIDATION_METRICS, Targets, loss_by_name, validation_metrics
 from dpsi.optim import Adam, screen_gradients
-from dpsi.parameters import IDENTIFIED, LEVEL1_FIXED, NAMES, Parameters, random_initial
+from dpsi.parameters import IDENTIFIED, LEVEL1_FIXED, NAMES, Parameters, check_known, random_initial
 from dpsi.files import atomic_output
 from dpsi.progress import Progress
 from dpsi.provenance import library_checksum
@@ -199,12 +199,10 @@ def hold_known(initial: Parameters, known: Mapping[str, float] | None, level: in
     set; they must be identified at ``level`` (the others are fixed anyway), in range, and leave at least
     one parameter to identify."""
     known = dict(known or {})
-    wrong = sorted(set(known) - set(IDENTIFIED[level]))
-    if wrong:
-        raise IdentificationError(f"known parameter(s) {wrong} are not identified at level {level}; "
-                                  f"known values may be given for {list(IDENTIFIED[level])}")
-    if set(known) == set(IDENTIFIED[level]):
-        raise IdentificationError(f"every parameter of level {level} is known: nothing left to identify")
+    try:
+        check_known(known, level)
+    except ValueError as err:
+        raise IdentificationError(str(err)) from None
     try:
         return initial.replace(**{n: float(v) for n, v in known.items()})
     except ValueError as err:
