@@ -170,9 +170,10 @@ def check_run(level: int, loss: str, training: Sequence[Datapoint], validation_s
 
 
 def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_targets: Sequence[str]) -> None:
-    """Raise naming ``dp`` if the simulator cannot hold it, steps at another length than the simulator, or
-    one of its ``emd_targets`` (fields measured by an earth mover's distance) is empty or has more points
-    than the particles; the messages name the option to change."""
+    """Raise naming ``dp`` if the simulator cannot hold it (too many particles or steps, or it leaves the
+    simulated box), steps at another length than the simulator, or one of its ``emd_targets`` (fields
+    measured by an earth mover's distance) is empty or has more points than the particles; the messages
+    name the option to change."""
     where = f"{dataset} datapoint {dp.id!r}"
     n = len(dp.particles)
     if n > config.max_particles:
@@ -185,6 +186,10 @@ def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_t
     if dp.trajectory.n_steps > config.max_steps:
         raise IdentificationError(f"{where} has {dp.trajectory.n_steps} steps, more than the simulator's "
                                   f"max_steps={config.max_steps}")
+    try:
+        config.check_box(scene(dp))
+    except SimulationError as err:
+        raise IdentificationError(f"{where}: {err}") from None
     for field in emd_targets:
         k = len(getattr(dp, field))
         if not 0 < k <= n:
