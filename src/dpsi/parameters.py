@@ -130,6 +130,12 @@ def clip(values: dict[str, float]) -> dict[str, float]:
     return {k: float(np.clip(v, LOWER[k], UPPER[k])) for k, v in values.items()}
 
 
+def at_bound(values, names=NAMES) -> dict[str, str]:
+    """The parameters among ``names`` whose value in ``values`` (a mapping name → value) lies exactly on a
+    bound of its range (where clipping after an update leaves it), mapped to "lower" or "upper"."""
+    return {n: "lower" if values[n] == LOWER[n] else "upper" for n in names if values[n] in (LOWER[n], UPPER[n])}
+
+
 def check_known(known, level: int) -> None:
     """``ValueError`` unless the parameters of ``known`` (names → values) are all identified at ``level`` (the
     others are fixed anyway) and leave at least one to identify."""
@@ -154,6 +160,6 @@ def random_initial(seed: int, level: int) -> Parameters:
 
 __all__ = [
     "NAMES", "LOWER", "UPPER", "STEP_SIZE", "IDENTIFIED", "LEVEL1_FIXED", "SCALE_FREE", "scale_free", "UNITS",
-    "Parameters", "lame", "HAND_PICKED", "at_level", "hand_picked", "STIFFEST", "clip", "check_known",
+    "Parameters", "lame", "HAND_PICKED", "at_level", "hand_picked", "STIFFEST", "clip", "at_bound", "check_known",
     "random_initial",
 ]
