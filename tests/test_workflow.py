@@ -213,9 +213,10 @@ def test_tiny_workflow_makes_every_table(tiny_run):
     assert list(motions.sim_steps) == [87, 94, 152, 153, 378, 460, 625]
     best = pd.read_csv(tables / "best_params.csv")
     assert list(best.columns) == ["level", "loss", "dataset", "E", "nu", "rho", "yield_stress", "mu_table",
-                                  "mu_effector", "val_heightmap_mm", "hand_picked_mm", "no_motion_mm", "recommended"]
+                                  "mu_effector", "val_heightmap_mm", "hand_picked_mm", "no_motion_mm", "recommended",
+                                  "at_bound"]
     assert set(best.loss) == {"prt_cd", "hand-picked"} and set(best.level) == {1, 2}
-    assert best.drop(columns=["dataset"]).notna().all().all() and (best.val_heightmap_mm > 0).all()
+    assert best.drop(columns=["dataset", "at_bound"]).notna().all().all() and (best.val_heightmap_mm > 0).all()
     hand = best[best.loss == "hand-picked"].set_index("level")
     assert (hand.val_heightmap_mm == hand.hand_picked_mm).all() and (hand.no_motion_mm > hand.hand_picked_mm).all()
     assert best.groupby("level").recommended.sum().tolist() == [1, 1]
