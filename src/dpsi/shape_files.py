@@ -132,11 +132,33 @@ def _binary_element(data: bytes, offset: int, element: PlyElement, order: str) -
 
 def _ascii_element(tokens: list[bytes], start: int, element: PlyElement) -> tuple[int, dict[str, list]]:
     """As :func:`_binary_element`, for the whitespace-separated ``tokens`` of an ASCII PLY's data."""
-    props = element.properties
+    props, count = element.properties, element.count
+    if not any(p.count_type for p in props):
+        end = start + count * len(props)
+        if end > len(tokens):
+            raise _Truncated
+        return end, {}
+    if count == 0:
+        return start, {p.name: (np.zeros(0, np.int64), np.zeros(0, np.int64)) for p in props if p.count_type}
+    columns, position = [], start  # the first row's layout: (property, column of its count, its length)
+    try:
+        for p in props:
+            n = int(tokens[position]) if p.count_type else 0
+            columns.append((p, position - start, n))
+            position += 1 + n if p.count_type else 1
+    except IndexError:
+        raise _Truncated from None
+    width = position - start
+    block = tokens[start:start + count * width]
+    if len(block) == count * width:
+        rows = np.asarray(block, dtype=float).reshape(count, width)
+        if all((rows[:, c] == n).all() for p, c, n in columns if p.count_type):
+            return start + count * width, {p.name: (rows[:, c + 1:c + 1 + n].reshape(-1).astype(np.int64),
+                                                    np.full(count, n)) for p, c, n in columns if p.count_type}
     values = {p.name: ([], []) for p in props if p.count_type}
     position = start
     try:
-        for _ in range(element.count):
+        for _ in range(count):
             for p in props:
                 if p.count_type is None:
                     position += 1
