@@ -90,25 +90,22 @@ def _binary_element(data: bytes, offset: int, element: PlyElement, order: str) -
         return end, {}
     if count == 0:
         return offset, {p.name: (np.zeros(0, np.int64), np.zeros(0, np.int64)) for p in lists}
-    fields, position = [], offset
-    for k, p in enumerate(props):  # the first row's layout
+    fields, lengths, position = [], {}, offset  # the first row's layout, and the length of each of its lists
+    for k, p in enumerate(props):
         if p.count_type is None:
             fields.append((f"s{k}", order + p.type))
             position += _item_size(p.type)
             continue
         if position + _item_size(p.count_type) > len(data):
             raise _Truncated
-        n = int(np.frombuffer(data, order + p.count_type, 1, position)[0])
+        lengths[k] = n = int(np.frombuffer(data, order + p.count_type, 1, position)[0])
         fields += [(f"n{k}", order + p.count_type), (f"i{k}", order + p.type, (n,))]
         position += _item_size(p.count_type) + n * _item_size(p.type)
     row = np.dtype(fields)
     rows = np.frombuffer(data, row, min(count, (len(data) - offset) // row.itemsize), offset)
-    uniform = len(rows) == count and all((rows[f"n{k}"] == row[f"i{k}"].shape[0]).all()
-                                         for k, p in enumerate(props) if p.count_type)
-    if uniform:
-        return offset + count * row.itemsize, {
-            p.name: (rows[f"i{k}"].reshape(-1).astype(np.int64), np.full(count, row[f"i{k}"].shape[0]))
-            for k, p in enumerate(props) if p.count_type}
+    if len(rows) == count and all((rows[f"n{k}"] == n).all() for k, n in lengths.items()):
+        return offset + count * row.itemsize, {props[k].name: (rows[f"i{k}"].reshape(-1).astype(np.int64),
+                                                               np.full(count, n)) for k, n in lengths.items()}
     values = {p.name: ([], []) for p in lists}
     position = offset
     for _ in range(count):
