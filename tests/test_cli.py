@@ -11,7 +11,7 @@ import open3d as o3d
 import pytest
 
 from dpsi import __main__ as cli
-from dpsi.__main__ import main
+from dpsi.__main__ import build_parser, main
 from dpsi.parameters import HAND_PICKED
 from dpsi.pointclouds import write_mesh, write_points
 from dpsi.prepare import surface_points
@@ -136,6 +136,22 @@ def _millimetres(folder):
     return folder / "mm.obj"
 
 
+def _floating(folder):
+    write_mesh(folder / "float.obj", _box(0.03, 0.025).translate((0.0, 0.0, 0.05)))
+    return folder / "float.obj"
+
+
+def _faces_marked_deleted(folder):
+    """The box as an ASCII PLY whose faces carry MeshLab's 'flags' with the deleted bit set."""
+    box = _box(0.03, 0.025)
+    v, f = np.asarray(box.vertices), np.asarray(box.triangles)
+    (folder / "flags.ply").write_text(
+        f"ply\nformat ascii 1.0\nelement vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element face {len(f)}\nproperty list uchar int vertex_indices\nproperty int flags\nend_header\n"
+        + "".join(f"{x} {y} {z}\n" for x, y, z in v) + "".join(f"3 {a} {b} {c} 1\n" for a, b, c in f))
+    return folder / "flags.ply"
+
+
 @pytest.mark.parametrize("broken, message", [
     (lambda d: {"before": _open_mesh(d)}, lambda d: f"{d / 'open.obj'}: mesh is not watertight"),
     (lambda d: {"after": _nan_vertex(d)[0]},
@@ -147,12 +163,51 @@ def _millimetres(folder):
     (lambda d: {"max_particles": "100"}, lambda d: "the simulator holds 100"),
     (lambda d: {"density": "3e6"}, lambda d: "at --density 3e+06 the object has 100 particles, fewer than the "
                                              "170 points of the PCD target"),
+    (lambda d: {"before": _floating(d), "table_z": "0"},
+     lambda d: f"{d / 'float.obj'}: its bottom is 50.0 mm above the table (z = 0 m): it would fall"),
+    (lambda d: {"table_z": "0.1"}, lambda d: "before.obj: its bottom is 100.0 mm below the table (z = 0.1 m): it is "
+                                             "sunk into the table"),
+    (lambda d: {"motion": "flattening"}, lambda d: "motion flattening is made with the cylinder effector (SPEC §2), "
+                                                   "not round"),
+    (lambda d: {"before": d / "x.stl"}, lambda d: f"{d / 'x.stl'}: unsupported shape file type '.stl'; use a point "
+                                                  "cloud (.ply, .pcd, .xyz, .npy) or a watertight mesh (.obj, or .ply "
+                                                  "with faces)"),
+    (lambda d: {"after": _faces_marked_deleted(d)},
+     lambda d: f"{d / 'flags.ply'}: the header declares 12 faces but PyMeshLab read none"),
 ])
 def test_unusable_shapes_are_refused_before_simulating(capsys, monkeypatch, shapes, tmp_path, broken, message):
     monkeypatch.setattr(cli, "Simulator", lambda config: pytest.fail("a simulator was started"))
     assert main(["simulate", *_options(shapes, **broken(tmp_path))]) == 1
     error = capsys.readouterr().err
     assert error.startswith("dpsi simulate: error: ") and message(tmp_path) in error, error
+
+
+def test_identify_names_a_table_above_the_shape(capsys, monkeypatch, shapes, tmp_path):
+    """`identify --table-z 0.1` reported the initial values, without the cause `simulate` gave."""
+    monkeypatch.setattr(cli, "Simulator", lambda config: pytest.fail("a simulator was started"))
+    assert main(["identify", *_options(shapes, table_z="0.1"), "--loss", "prt_cd", "--out", str(tmp_path)]) == 1
+    assert "before.obj: its bottom is 100.0 mm below the table (z = 0.1 m)" in capsys.readouterr().err
+
+
+def test_suspicious_shapes_are_warned_about(capsys, shapes, tmp_path):
+    write_mesh(tmp_path / "taller.obj", _box(0.03, 0.03))
+    args = build_parser().parse_args(["simulate", *_options(shapes, after=tmp_path / "taller.obj")])
+    cli._shapes_datapoint(args.before, args.after, args.motion, args.effector, args.density, args.table_z,
+                          cli.SimulatorConfig())
+    assert re.search(r"^dpsi: warning: .*taller\.obj: its top is \d\.\d mm higher than the top of .*before\.obj; the "
+                     "motions press the clay down — are before and after swapped\?$", capsys.readouterr().err, re.M)
+
+
+def test_identified_parameter_on_its_bound_is_marked(capsys, monkeypatch, shapes, tmp_path):
+    """E clipped to its upper bound is marked; μ_t = 2 (its upper bound too) is fixed at level 1, not identified."""
+    values = {**HAND_PICKED.replace(E=3e5, mu_table=2.0, mu_effector=0.3).as_dict()}
+    best = {"iteration": 4, "parameters": values, "validation": {"heightmap_mm": 2000.0}}
+    monkeypatch.setattr(cli, "identify", lambda *args, **kwargs: {"best": best, "final": best})
+    monkeypatch.setattr(cli, "Simulator", lambda config: None)
+    assert main(["identify", *shapes, "--loss", "prt_cd", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "E: 300000 Pa (at its upper bound: the data may want a value outside the range)" in out
+    assert "mu_table: 2 -\n" in out and "nu: 0.4 -\n" in out
 
 
 def test_too_low_density_names_one_that_works(capsys, monkeypatch, shapes):

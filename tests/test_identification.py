@@ -263,6 +263,20 @@ def test_bad_arguments_fail_before_any_simulation(problem, tmp_path, change, mes
     assert not (tmp_path / "run").exists()
 
 
+@pytest.mark.parametrize("change, message", [
+    ({"start": np.array([0.0, 0.0, 0.06])}, "leaves the simulated box at step 0"),
+    ({"particles": block() * [3.0, 1.0, 1.0]}, "particles lie outside the simulated box"),
+])
+def test_datapoint_outside_the_simulated_box_is_named_before_any_simulation(problem, tmp_path, change, message):
+    """A lump too wide for the box, or a tip path leaving it: every simulation failed, and the run "stopped
+    early" with exit 0 and no cause."""
+    outside = dataclasses.replace(problem[0][1], **change)
+    untouchable = SimpleNamespace(config=CONFIG, forward=_failing, backward=_failing)
+    with pytest.raises(IdentificationError, match=f"training datapoint 'rectangle': .*{message}"):
+        identify(tmp_path / "run", 1, "prt_cd", [problem[0][0], outside], problem[1], simulator=untouchable)
+    assert not (tmp_path / "run").exists()
+
+
 def test_oversized_earth_movers_target_is_named(problem, tmp_path):
     too_big = dataclasses.replace(problem[1][0], prt_target=np.zeros((300, 3)))
     with pytest.raises(IdentificationError, match="validation datapoint 'cylinder': prt_target has 300 points"):

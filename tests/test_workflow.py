@@ -141,6 +141,34 @@ def test_unknown_motion_in_the_table_is_named_at_start_up(tmp_path):
     assert "datapoints.csv: line 2: unknown motion 'poking-9'" in output and "lacks train datapoints" not in output
 
 
+def _known_friction(raw, config):
+    settings = yaml.safe_load(config.read_text())
+    settings["identification"]["known"] = {"mu_table": 1.0}
+    config.write_text(yaml.safe_dump(settings, sort_keys=False))
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda raw, _: (raw / "dataset.yaml").write_text("table_z: [0.0\n"), "raw/probe/dataset.yaml: not valid YAML"),
+    (lambda raw, _: (raw / "dataset.yaml").write_text("table_z: !!python/object/apply:os.getpid []\n"),
+     "raw/probe/dataset.yaml (line 1): tags such as"),
+    (lambda raw, _: (raw / "dataset.yaml").write_text("effectors: [round]\n"),
+     "raw/probe/dataset.yaml: effectors must be a mapping"),
+    (lambda raw, _: (raw / "dataset.yaml").write_text(f"effectors: {{mine: {{obj: {raw.parent / 'tool.obj'}}}}}\n"),
+     "raw/probe/dataset.yaml: effectors.mine.obj is the absolute path"),
+    (_known_friction, "config key identification.known: known parameter(s) ['mu_table'] are not identified at "
+                      "level 1"),
+])
+def test_bad_dataset_yaml_or_known_parameter_is_named_at_start_up(tmp_path, damage, message):
+    """Each once gave a traceback while Snakemake planned, a MissingInputException, or (the known friction)
+    a failure of the identify job after the whole reconstruction."""
+    project, config = _raw_project(tmp_path)
+    damage(project / "raw" / "probe", config)
+    run = snakemake(project, "-n", "tables", config=config)
+    output = run.stdout + run.stderr
+    assert run.returncode != 0 and message in output, output[-3000:]
+    assert "Traceback" not in output
+
+
 def test_failing_raw_data_job_writes_its_error_to_its_log(tmp_path):
     """The raw dataset lacks the planner trajectory of poking-2: the job validating each raw datapoint
     (check_raw, before the trajectory stage) fails, its log holding the message naming the file and the
@@ -185,9 +213,10 @@ def test_tiny_workflow_makes_every_table(tiny_run):
     assert list(motions.sim_steps) == [87, 94, 152, 153, 378, 460, 625]
     best = pd.read_csv(tables / "best_params.csv")
     assert list(best.columns) == ["level", "loss", "dataset", "E", "nu", "rho", "yield_stress", "mu_table",
-                                  "mu_effector", "val_heightmap_mm", "hand_picked_mm", "no_motion_mm", "recommended"]
+                                  "mu_effector", "val_heightmap_mm", "hand_picked_mm", "no_motion_mm", "recommended",
+                                  "at_bound"]
     assert set(best.loss) == {"prt_cd", "hand-picked"} and set(best.level) == {1, 2}
-    assert best.drop(columns=["dataset"]).notna().all().all() and (best.val_heightmap_mm > 0).all()
+    assert best.drop(columns=["dataset", "at_bound"]).notna().all().all() and (best.val_heightmap_mm > 0).all()
     hand = best[best.loss == "hand-picked"].set_index("level")
     assert (hand.val_heightmap_mm == hand.hand_picked_mm).all() and (hand.no_motion_mm > hand.hand_picked_mm).all()
     assert best.groupby("level").recommended.sum().tolist() == [1, 1]

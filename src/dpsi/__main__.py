@@ -27,13 +27,16 @@ from dpsi.effectors import BUILT_IN, by_name
 from dpsi.identification import evaluate, identify
 from dpsi.motion_offsets import register, shifted
 from dpsi.losses import LOSSES
-from dpsi.motions import MOTIONS, get_motion, trajectory
-from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, NAMES, UNITS, Parameters, hand_picked, random_initial
-from dpsi.pointclouds import read_mesh
+from dpsi.motions import MOTIONS, check_effector, get_motion, trajectory
+from dpsi.parameters import (HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, NAMES, UNITS, Parameters, at_bound, hand_picked,
+                             random_initial)
+from dpsi.plausibility import check_plausible
+from dpsi.pointclouds import CLOUD_SUFFIXES, MESH_SUFFIXES
 from dpsi.prepare import after_targets, assemble, density_holding, fill_particles, reconstruct_state
 from dpsi.rawdata import StateSource
 from dpsi.release import import_release
 from dpsi.release_plan import ImportTables
+from dpsi.shape_files import ply_has_faces
 from dpsi.simulation import SimulationError, Simulator, SimulatorConfig
 
 DENSITY = 4e7
@@ -42,14 +45,14 @@ MAX_PARTICLES = SimulatorConfig().max_particles
 
 
 def _source(path: str) -> StateSource:
-    """A shape file as a state source: a mesh if it has faces (.obj, or .ply with faces), else a fused cloud."""
-    if Path(path).suffix.lower() == ".ply":
-        try:
-            read_mesh(path)
-            return StateSource("mesh", (Path(path),))
-        except ValueError:
-            return StateSource("fused", (Path(path),))
-    return StateSource("mesh" if Path(path).suffix.lower() == ".obj" else "fused", (Path(path),))
+    """A shape file as a state source: a mesh if it has faces (.obj, or a .ply whose header declares faces),
+    else a fused cloud; ``ValueError`` naming the accepted types for any other file type."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in CLOUD_SUFFIXES + MESH_SUFFIXES:
+        raise ValueError(f"{path}: unsupported shape file type {suffix!r}; use a point cloud "
+                         f"({', '.join(CLOUD_SUFFIXES)}) or a watertight mesh (.obj, or .ply with faces)")
+    mesh = suffix == ".obj" or (suffix == ".ply" and Path(path).is_file() and ply_has_faces(path))
+    return StateSource("mesh" if mesh else "fused", (Path(path),))
 
 
 def _shapes_datapoint(before: str, after: str, motion: str, effector: str, density: float,
@@ -58,8 +61,10 @@ def _shapes_datapoint(before: str, after: str, motion: str, effector: str, densi
     through the before shape's lowest point; the tip starts at the top centre of the before shape's
     bounding box and follows the resampled ``motion``. Raises naming the file if the before shape does not
     fit the simulator of ``config`` (its box, or its particle capacity at ``density``), or holds fewer
-    particles than the after shape's PCD target has points."""
-    get_motion(motion)
+    particles than the after shape's PCD target has points, if the motion is made with another effector
+    (SPEC §2), or if the pair is not a possible capture (:func:`~dpsi.plausibility.check_plausible`, whose
+    warnings are printed)."""
+    check_effector(motion, effector, effector)
     shape = by_name(effector)
     _, before_mesh = reconstruct_state(_source(before), None, 0.0, before, config)
     after_points, after_mesh = reconstruct_state(_source(after), None, 0.0, after, config)
@@ -74,7 +79,10 @@ def _shapes_datapoint(before: str, after: str, motion: str, effector: str, densi
                          f"mover's distance needs no more target points than particles); use --density "
                          f"{density_holding(before_mesh, len(targets.pcd_target), density):.3g} or more")
     start = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2]]
-    return assemble(Path(before).stem, motion, shape, particles, density, trajectory(motion), start, targets)
+    dp = assemble(Path(before).stem, motion, shape, particles, density, trajectory(motion), start, targets)
+    for warning in check_plausible(dp, before, after, f"the {motion} path from the top of {before}", "--table-z"):
+        print(f"dpsi: warning: {warning}", file=sys.stderr)
+    return dp
 
 
 def _param(text: str) -> tuple[str, float]:
@@ -319,7 +327,11 @@ def _identify(parser, args, repairs: list[dict]) -> list[str]:
             f"best iteration {best['iteration']} (validation height map {best['validation']['heightmap_mm']:.1f} mm):")
     values = (best or summary["final"])["parameters"]
     held = [f"{name} was held at the given value (--known)" for name, _ in args.known]
-    return [head, *(f"{name}: {value:g} {UNITS[name]}" for name, value in values.items()), *held,
+    bounds = at_bound(values, [n for n in IDENTIFIED[args.level] if n not in dict(args.known)])
+    marked = (f"{name}: {value:g} {UNITS[name]}" + (f" (at its {bounds[name]} bound: the data may want a value outside "
+                                                    "the range)" if name in bounds else "")
+              for name, value in values.items())
+    return [head, *marked, *held,
             *(f"motion offset of {i}: {mm} mm" for i, mm in offsets.items()), *_repair_lines(repairs),
             f"saved in {Path(args.out) / 'summary.json'}"]
 

@@ -41,7 +41,7 @@ import pandas as pd
 from dpsi.datapoint import Datapoint
 from dpsi.losses import LOSSES, VALIDATION_METRICS, Targets, loss_by_name, validation_metrics
 from dpsi.optim import Adam, screen_gradients
-from dpsi.parameters import IDENTIFIED, LEVEL1_FIXED, NAMES, Parameters, random_initial
+from dpsi.parameters import IDENTIFIED, LEVEL1_FIXED, NAMES, Parameters, check_known, random_initial
 from dpsi.files import atomic_output
 from dpsi.progress import Progress
 from dpsi.provenance import library_checksum
@@ -170,9 +170,10 @@ def check_run(level: int, loss: str, training: Sequence[Datapoint], validation_s
 
 
 def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_targets: Sequence[str]) -> None:
-    """Raise naming ``dp`` if the simulator cannot hold it, steps at another length than the simulator, or
-    one of its ``emd_targets`` (fields measured by an earth mover's distance) is empty or has more points
-    than the particles; the messages name the option to change."""
+    """Raise naming ``dp`` if the simulator cannot hold it (too many particles or steps, or it leaves the
+    simulated box), steps at another length than the simulator, or one of its ``emd_targets`` (fields
+    measured by an earth mover's distance) is empty or has more points than the particles; the messages
+    name the option to change."""
     where = f"{dataset} datapoint {dp.id!r}"
     n = len(dp.particles)
     if n > config.max_particles:
@@ -185,6 +186,10 @@ def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_t
     if dp.trajectory.n_steps > config.max_steps:
         raise IdentificationError(f"{where} has {dp.trajectory.n_steps} steps, more than the simulator's "
                                   f"max_steps={config.max_steps}")
+    try:
+        config.check_box(scene(dp))
+    except SimulationError as err:
+        raise IdentificationError(f"{where}: {err}") from None
     for field in emd_targets:
         k = len(getattr(dp, field))
         if not 0 < k <= n:
@@ -199,12 +204,10 @@ def hold_known(initial: Parameters, known: Mapping[str, float] | None, level: in
     set; they must be identified at ``level`` (the others are fixed anyway), in range, and leave at least
     one parameter to identify."""
     known = dict(known or {})
-    wrong = sorted(set(known) - set(IDENTIFIED[level]))
-    if wrong:
-        raise IdentificationError(f"known parameter(s) {wrong} are not identified at level {level}; "
-                                  f"known values may be given for {list(IDENTIFIED[level])}")
-    if set(known) == set(IDENTIFIED[level]):
-        raise IdentificationError(f"every parameter of level {level} is known: nothing left to identify")
+    try:
+        check_known(known, level)
+    except ValueError as err:
+        raise IdentificationError(str(err)) from None
     try:
         return initial.replace(**{n: float(v) for n, v in known.items()})
     except ValueError as err:

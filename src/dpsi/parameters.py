@@ -130,6 +130,24 @@ def clip(values: dict[str, float]) -> dict[str, float]:
     return {k: float(np.clip(v, LOWER[k], UPPER[k])) for k, v in values.items()}
 
 
+def at_bound(values, names=NAMES) -> dict[str, str]:
+    """The parameters among ``names`` whose value in ``values`` (a mapping name → value) lies exactly on a
+    bound of its range (where clipping after an update leaves it), mapped to "lower" or "upper"."""
+    return {n: "lower" if values[n] == LOWER[n] else "upper" for n in names if values[n] in (LOWER[n], UPPER[n])}
+
+
+def check_known(known, level: int) -> None:
+    """``ValueError`` unless the parameters of ``known`` (names → values) are all identified at ``level`` (the
+    others are fixed anyway) and leave at least one to identify."""
+    wrong = sorted(set(known) - set(IDENTIFIED[level]))
+    if wrong:
+        fixed = f" (level 1 holds the frictions at {LEVEL1_FIXED})" if level == 1 else ""
+        raise ValueError(f"known parameter(s) {wrong} are not identified at level {level}{fixed}; known values may "
+                         f"be given for {list(IDENTIFIED[level])}")
+    if set(known) == set(IDENTIFIED[level]):
+        raise ValueError(f"every parameter of level {level} is known: nothing left to identify")
+
+
 def random_initial(seed: int, level: int) -> Parameters:
     """Uniform random values in the ranges for the identified parameters of ``level``;
     the level-1 frictions stay at :data:`LEVEL1_FIXED`."""
@@ -142,5 +160,6 @@ def random_initial(seed: int, level: int) -> Parameters:
 
 __all__ = [
     "NAMES", "LOWER", "UPPER", "STEP_SIZE", "IDENTIFIED", "LEVEL1_FIXED", "SCALE_FREE", "scale_free", "UNITS",
-    "Parameters", "lame", "HAND_PICKED", "at_level", "hand_picked", "STIFFEST", "clip", "random_initial",
+    "Parameters", "lame", "HAND_PICKED", "at_level", "hand_picked", "STIFFEST", "clip", "at_bound", "check_known",
+    "random_initial",
 ]

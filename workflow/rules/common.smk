@@ -11,15 +11,16 @@ import re
 from pathlib import Path
 
 import pandas as pd
-import yaml
 from snakemake.exceptions import WorkflowError
 from snakemake.logging import logger
 from snakemake.utils import validate
 
 from dpsi import datasets as dpsi_datasets
 from dpsi import release_plan, twin_plan
+from dpsi.dataset_yaml import DatasetYamlError, read_dataset_yaml
 from dpsi.datapoints_table import TableError, check_table, read_table
 from dpsi.motions import MOTIONS
+from dpsi.parameters import check_known
 
 validate(config, "../schemas/config.schema.yaml")
 
@@ -154,9 +155,22 @@ def released_pairs():
         raise WorkflowError(f"config `release`: {err}")
 
 
+def raw_layout():
+    """The raw dataset's dataset.yaml, checked at parse time (a file it names must exist before a rule
+    depends on it). The twin writes its own: until then, the defaults."""
+    try:
+        return read_dataset_yaml(RAW)
+    except DatasetYamlError as err:
+        raise WorkflowError(f"{err} (docs/raw-format.md)")
+
+
+LAYOUT = raw_layout()
+
+
 def datapoints_table():
     """The datapoints table: planned by the twin config, or read from the raw dataset; checked at parse
-    time (ids become file names, so an unsafe id must never reach a rule)."""
+    time (ids become file names, so an unsafe id must never reach a rule; each motion with its effector).
+    """
     if TWIN:
         plan = twin_plan.plan_from_config(config["twin"]["groups"])
         table = pd.DataFrame(twin_plan.plan_rows(plan))
@@ -171,7 +185,7 @@ def datapoints_table():
             "the name of the config's `twin` to generate a synthetic one"
         )
     try:
-        return read_table(path)
+        return read_table(path, LAYOUT.kinds())
     except TableError as err:
         raise WorkflowError(f"{err} (docs/raw-format.md)")
 
@@ -295,6 +309,25 @@ except ValueError as err:
     )
 
 
+def check_known_parameters():
+    """Fail at start-up, naming the config key, if parameters held known are not identified at a level
+    of the runs they are given for."""
+    ladder = ANALYSES.get("identifiability", {})
+    for key, known, levels in [
+        ("identification.known", IDENT.get("known", {}), IDENT["levels"]),
+        (
+            "analyses.identifiability.known",
+            ladder.get("known", {}),
+            ladder.get("levels", []),
+        ),
+    ]:
+        for level in levels:
+            try:
+                check_known(known, level)
+            except ValueError as err:
+                raise WorkflowError(f"config key {key}: {err}")
+
+
 OOD = 2 in IDENT["levels"] and (TABLE.role == "ood").any()
 """Whether the out-of-distribution evaluation runs (it uses the level-2 parameters)."""
 TABLES = [
@@ -330,14 +363,9 @@ def raw_config_files():
     files = [f"{RAW}/datapoints.csv"]
     if TWIN or layout.is_file():
         files.append(str(layout))
-    if layout.is_file():
-        effectors = (yaml.safe_load(layout.read_text()) or {}).get("effectors") or {}
-        files += [
-            f"{RAW}/{e['obj']}"
-            for e in effectors.values()
-            if isinstance(e, dict) and "obj" in e
-        ]
-    return files
+    return files + [
+        str(spec.obj) for spec in LAYOUT.effectors.values() if spec.obj is not None
+    ]
 
 
 def raw_datapoint(wildcards):
@@ -386,6 +414,7 @@ if set(config.get("analyses", {})) - set(ANALYSES):
 ANALYSIS_TABLES = []
 ANALYSIS_FIGURES = []
 """Outputs of the analyses in the config; each analysis rule file adds its own, reporting.smk collects them."""
+check_known_parameters()
 
 
 def parameter_source_inputs(source):

@@ -5,7 +5,7 @@ File names and CSV columns are an interface that other tools read:
 - ``motions.csv``: motion, segments, duration_s, real_waypoints, sim_steps
 - ``parameters.csv``: parameter, unit, min, max, step_level1, step_level2, hand_picked
 - ``best_params.csv``: level, loss, dataset, E, nu, rho, yield_stress, mu_table, mu_effector,
-  val_heightmap_mm, hand_picked_mm, no_motion_mm, recommended (plus rows with dataset = "average" per loss,
+  val_heightmap_mm, hand_picked_mm, no_motion_mm, recommended, at_bound (plus rows with dataset = "average" per loss,
   and loss = "hand-picked")
 - ``generalisation.csv``: level, loss, dataset, seed, pair, identified_mm, hand_picked_mm, no_motion_mm, change
 - ``ood_heightmap.csv``: motion, config, loss, dataset, heightmap_mm (plus loss = "hand-picked" rows
@@ -29,7 +29,7 @@ import pandas as pd
 
 from ..motions import MOTIONS, plan, resample
 from ..losses import VALIDATION_METRICS
-from ..parameters import HAND_PICKED, IDENTIFIED, LOWER, NAMES, STEP_SIZE, UNITS, UPPER, hand_picked, scale_free
+from ..parameters import HAND_PICKED, IDENTIFIED, LOWER, NAMES, STEP_SIZE, UNITS, UPPER, at_bound, hand_picked, scale_free
 from ..files import atomic_output
 from ..generalisation import DECIDING_METRIC
 
@@ -69,6 +69,8 @@ def best_params_table(summaries: list[dict], baselines: Mapping[tuple[int, str],
     distance on the same validation datapoints; per (level, loss) the average over datasets; per level the
     hand-picked parameters with their distance over every validation datapoint of the level.
     ``recommended`` marks one row per level (level → (loss, dataset, seed), :func:`dpsi.generalisation.recommend`).
+    Column ``at_bound`` names each identified parameter that ends exactly on a bound of its range
+    (``E=upper; nu=lower``): clipping put it there, and the data may want a value outside the range.
 
     ``summaries``: run summaries (identification ``summary.json``) with keys level, loss, dataset;
     ``baselines``: (level, datapoint id) → :func:`dpsi.generalisation.baseline` record."""
@@ -89,18 +91,28 @@ def best_params_table(summaries: list[dict], baselines: Mapping[tuple[int, str],
                          hand_picked_mm=baseline_mm(level, ids, "hand_picked"),
                          no_motion_mm=baseline_mm(level, ids, "no_motion"),
                          recommended=recommended.get(level, (None,) * 3)[:2] == (loss, dataset)
-                         and recommended[level][2] == run["seed"]))
+                         and recommended[level][2] == run["seed"], at_bound=_at_bound_label(run)))
     columns = ["level", "loss", "dataset", *NAMES, "val_heightmap_mm", "hand_picked_mm", "no_motion_mm"]
-    table = pd.DataFrame(rows, columns=[*columns, "recommended"])
+    table = pd.DataFrame(rows, columns=[*columns, "recommended", "at_bound"])
     averages = (table.groupby(["level", "loss"], sort=False)[columns[3:]].mean().reset_index()
-                .assign(dataset=AVERAGE_LABEL, recommended=False))
+                .assign(dataset=AVERAGE_LABEL, recommended=False, at_bound=""))
     baseline = pd.DataFrame([dict(level=level, loss=HAND_PICKED_LABEL, dataset="", **hand_picked(level).as_dict(),
                                   val_heightmap_mm=baseline_mm(level, ids, "hand_picked"),
                                   hand_picked_mm=baseline_mm(level, ids, "hand_picked"),
-                                  no_motion_mm=baseline_mm(level, ids, "no_motion"), recommended=False)
+                                  no_motion_mm=baseline_mm(level, ids, "no_motion"), recommended=False,
+                                  at_bound="")
                              for level, ids in sorted(validated.items())])
     return (pd.concat([table, averages, baseline], ignore_index=True)
             .sort_values(["level"], kind="stable")[table.columns].reset_index(drop=True))
+
+
+def _at_bound_label(summary: dict | None) -> str:
+    """``name=lower`` / ``name=upper`` for each parameter a run identified (those of its level, less the ones
+    it held known) whose value at its best iteration lies on a bound of its range, joined by "; "."""
+    if not summary or not summary.get("best"):
+        return ""
+    identified = [n for n in IDENTIFIED[int(summary["level"])] if n not in summary.get("known", ())]
+    return "; ".join(f"{n}={side}" for n, side in at_bound(summary["best"]["parameters"], identified).items())
 
 
 def generalisation_table(rows: list[dict]) -> pd.DataFrame:

@@ -17,6 +17,9 @@ from ..parameters import STIFFEST, Parameters
 
 PRECISIONS = ("f64", "f32")
 
+WALL_CELLS = 3
+"""Nodes this close to the box's faces stop outward motion (the box walls)."""
+
 class SimulationError(RuntimeError):
     """A simulation could not run or went unstable; the message says where and with what parameters."""
 
@@ -83,6 +86,32 @@ class SimulatorConfig:
         """Substeps per step for these parameters (explicit stability with margin ``cfl``)."""
         n = math.ceil(self.step_dt * params.p_wave_speed() / (self.cfl * self.dx))
         return max(self.min_substeps, n)
+
+    def check_box(self, scene: "Scene") -> np.ndarray:
+        """The grid's corner (m) for ``scene`` (its box centred on the particles' footprint, the table
+        WALL_CELLS cells above its floor), after checking that the particles and the effector's tip stay
+        inside the box (two cells from its faces); :class:`SimulationError` saying which leaves it."""
+        shape = np.array(self.grid_shape)
+        origin = np.array([*(scene.centre_xy - 0.5 * shape[0] * self.dx), scene.table_z - WALL_CELLS * self.dx])
+        upper, lower = origin + (shape - 2) * self.dx, origin + 2 * self.dx
+        box = (f"[{lower.round(4)}, {upper.round(4)}] m (simulator width {self.width:g} m in x and y, height "
+               f"{self.height:g} m above the table)")
+        outside = np.any((scene.particles < lower) | (scene.particles > upper), axis=1)
+        if outside.any():
+            first = scene.particles[outside][0]
+            raise SimulationError(f"{outside.sum()} particles lie outside the simulated box {box} (e.g. "
+                                  f"{first.round(4)}); the object is larger than the box allows or lies below the "
+                                  "table")
+        tips, _ = scene.tip_poses()
+        margin = 2 * self.dx
+        bad = np.any((tips[:, :2] < lower[:2] + margin) | (tips[:, :2] > upper[:2] - margin), axis=1)
+        bad |= (tips[:, 2] < scene.table_z - self.dx) | (tips[:, 2] > upper[2])
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise SimulationError(f"the effector trajectory leaves the simulated box at step {k} (tip at "
+                                  f"{tips[k].round(4)} m, box {box}); the object is too large or the motion goes "
+                                  "too far for the box")
+        return origin
 
     @property
     def max_substeps(self) -> int:

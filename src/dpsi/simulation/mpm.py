@@ -46,7 +46,7 @@ import taichi as ti
 
 from ..effectors import GRID, SDF_GRID_RESOLUTION, Effector
 from ..parameters import Parameters
-from .config import Scene, SimulationError, SimulatorConfig
+from .config import WALL_CELLS, Scene, SimulationError, SimulatorConfig
 from .constitutive import (compose, compose_adjoint, lame_gradient, lame_parameters, plastic_flow,
                            plastic_flow_adjoint, principal_stress, principal_stress_adjoint)
 from .contact import effector_normal, effector_sdf, frictional_contact, frictional_contact_adjoint, rotation_z
@@ -55,9 +55,6 @@ from .svd import svd_backward, warm_started_svd
 
 GRAVITY = -9.81
 """Acceleration of gravity along z (m/s²)."""
-
-WALL_CELLS = 3
-"""Nodes this close to the box's faces stop outward motion (the box walls)."""
 
 CONTACT_MARGIN_CELLS = 2
 """Points this many cells outside the effector's bounding box are tested for contact (its signed distance
@@ -795,23 +792,8 @@ class Simulator:
                                   f"max_particles={c.max_particles}; lower the particle density or raise the capacity")
         if steps > c.max_steps:
             raise SimulationError(f"trajectory has {steps} steps, more than max_steps={c.max_steps}")
-        origin = np.array([*(scene.centre_xy - 0.5 * self.grid_shape[0] * c.dx), scene.table_z - WALL_CELLS * c.dx])
-        upper = origin + (np.array(self.grid_shape) - 2) * c.dx
-        lower = origin + 2 * c.dx
-        outside = np.any((scene.particles < lower) | (scene.particles > upper), axis=1)
-        if outside.any():
-            first = scene.particles[outside][0]
-            raise SimulationError(f"{outside.sum()} particles lie outside the simulated box "
-                                  f"[{lower.round(4)}, {upper.round(4)}] m (e.g. {first.round(4)}); the object is "
-                                  f"larger than SimulatorConfig.width/height allow or lies below the table")
+        origin = c.check_box(scene)
         tips, yaws = scene.tip_poses()
-        margin = np.array([2 * c.dx, 2 * c.dx, 0.0])
-        bad = np.any((tips[:, :2] < lower[:2] + margin[:2]) | (tips[:, :2] > upper[:2] - margin[:2]), axis=1)
-        bad |= (tips[:, 2] < scene.table_z - c.dx) | (tips[:, 2] > upper[2])
-        if bad.any():
-            k = int(np.argmax(bad))
-            raise SimulationError(f"the effector trajectory leaves the simulated box at step {k} "
-                                  f"(tip at {tips[k].round(4)} m, box [{lower.round(4)}, {upper.round(4)}] m)")
         self.n_particles[None] = n
         self.origin[None] = origin
         self._origin = origin
