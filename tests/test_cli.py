@@ -115,9 +115,10 @@ def _options(shapes, **change):
 
 
 def _open_mesh(folder):
-    """A closed sphere mesh with 20 of its faces deleted."""
+    """A closed sphere mesh with its top (100 of 360 faces) deleted: more than a scan's small holes, which
+    are repaired (tests/test_repair.py)."""
     mesh = o3d.geometry.TriangleMesh.create_sphere(0.015, resolution=10).translate((0, 0, 0.015))
-    mesh.triangles = o3d.utility.Vector3iVector(np.asarray(mesh.triangles)[20:])
+    mesh.triangles = o3d.utility.Vector3iVector(np.asarray(mesh.triangles)[100:])
     write_mesh(folder / "open.obj", mesh)
     return folder / "open.obj"
 
