@@ -196,7 +196,7 @@ def test_suspicious_shapes_are_warned_about(capsys, shapes, tmp_path):
     cli._shapes_datapoint(args.before, args.after, args.motion, args.effector, args.density, args.table_z,
                           cli.SimulatorConfig())
     assert re.search(r"^dpsi: warning: .*taller\.obj: its top is \d\.\d mm higher than the top of .*before\.obj; the "
-                     "motions press the clay down — are before and after swapped\?$", capsys.readouterr().err, re.M)
+                     r"motions press the clay down — are before and after swapped\?$", capsys.readouterr().err, re.M)
 
 
 def test_identified_parameter_on_its_bound_is_marked(capsys, monkeypatch, shapes, tmp_path):
