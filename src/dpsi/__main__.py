@@ -24,10 +24,11 @@ os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "false")  # stdout is for re
 
 from dpsi.datapoint import Datapoint
 from dpsi.effectors import BUILT_IN, by_name
-from dpsi.identification import evaluate, identify
+from dpsi.identification import IdentificationError, evaluate, identify
 from dpsi.motion_offsets import register, shifted
 from dpsi.losses import LOSSES
 from dpsi.motions import MOTIONS, get_motion, trajectory
+from dpsi.output_folder import writable_folder
 from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, NAMES, UNITS, Parameters, hand_picked, random_initial
 from dpsi.pointclouds import read_mesh
 from dpsi.prepare import after_targets, assemble, density_holding, fill_particles, reconstruct_state
@@ -302,6 +303,7 @@ def _identify(parser, args, repairs: list[dict]) -> list[str]:
                      "drop the option, or identify the frictions with --level 2")
     base = HAND_PICKED if args.initial == "hand-picked" else random_initial(args.seed, args.level)
     initial = _params(parser, base, args.param)
+    writable_folder(args.out)  # before the shapes are prepared; identify claims it before simulating
     config = SimulatorConfig(max_particles=args.max_particles)
     training = [_shapes_datapoint(*row, args.density, args.table_z, config) for row in rows]
     validation_set = ([_shapes_datapoint(*quad, args.density, args.table_z, config) for quad in args.validate]
@@ -315,11 +317,13 @@ def _identify(parser, args, repairs: list[dict]) -> list[str]:
     summary = identify(args.out, args.level, args.loss, training, validation_set, args.seed, args.iterations,
                        initial, simulator=simulator, known=dict(args.known))
     best = summary["best"]
-    head = ("no iteration has a finite validation height-map distance; final parameters:" if best is None else
-            f"best iteration {best['iteration']} (validation height map {best['validation']['heightmap_mm']:.1f} mm):")
-    values = (best or summary["final"])["parameters"]
+    if best is None:
+        raise IdentificationError(f"no updated iteration could be validated (every validation simulation failed "
+                                  f"or gave no finite height-map distance: see val_skipped in "
+                                  f"{Path(args.out) / 'log.csv'}); nothing identified")
     held = [f"{name} was held at the given value (--known)" for name, _ in args.known]
-    return [head, *(f"{name}: {value:g} {UNITS[name]}" for name, value in values.items()), *held,
+    return [f"best iteration {best['iteration']} (validation height map {best['validation']['heightmap_mm']:.1f} mm):",
+            *(f"{name}: {value:g} {UNITS[name]}" for name, value in best["parameters"].items()), *held,
             *(f"motion offset of {i}: {mm} mm" for i, mm in offsets.items()), *_repair_lines(repairs),
             f"saved in {Path(args.out) / 'summary.json'}"]
 
@@ -367,6 +371,11 @@ def main(argv: list[str] | None = None) -> int:
         message = err.args[0] if isinstance(err, KeyError) and err.args else err
         print(f"dpsi {args.command}: error: {message}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        again = (f"run the same command again to resume from its last completed iteration (kept in {args.out})"
+                 if args.command == "identify" else "run the same command again")
+        print(f"dpsi {args.command}: interrupted; {again}", file=sys.stderr)
+        return 130
     print("\n".join(lines))
     return 0
 
