@@ -16,7 +16,7 @@ from dpsi.__main__ import main
 from dpsi.parameters import HAND_PICKED
 from dpsi.pointclouds import write_mesh, write_points
 from dpsi.prepare import surface_points
-from dpsi.simulation import SimulationError, Simulator
+from dpsi.simulation import SimulationError, Simulator, memory
 
 KEYS = {"particles", "heightmap_mm", "pcd_cd", "prt_cd", "pcd_emd", "prt_emd", "params", "repairs"}
 
@@ -271,3 +271,11 @@ def test_ctrl_c_exits_with_130_one_line_and_a_resume_hint(shapes, tmp_path):
     again = subprocess.run(args, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr
     assert "seed 0 1/3" not in again.stderr and "seed 0 3/3" in again.stderr  # resumed after row 1
+
+
+def test_a_capacity_beyond_the_memory_is_refused_naming_the_option(capsys, monkeypatch, shapes):
+    monkeypatch.setattr(memory, "available_memory", lambda: 24e9)
+    assert main(["simulate", *shapes, "--max-particles", "1000000"]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("dpsi simulate: error: the simulator would need 46.8 GB") and error.count("\n") == 1
+    assert "lower simulator.max_particles (now 1000000; --max-particles on the command line)" in error

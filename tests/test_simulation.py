@@ -17,7 +17,8 @@ from dpsi.motions import Trajectory, trajectory
 from dpsi.parameters import HAND_PICKED, NAMES, STIFFEST, Parameters
 from dpsi.simulation import Scene, SimulationError, Simulator, SimulatorConfig
 from dpsi.simulation.constitutive import surely_elastic
-from dpsi.simulation.mpm import mapped_array
+from dpsi.simulation import memory, mpm
+from dpsi.simulation.mpm import field_bytes, mapped_array
 
 SPACING = 0.004  # m between particles: a coarse object keeps these tests fast
 CONFIG = SimulatorConfig(width=0.12, height=0.08, max_particles=1500, max_steps=120)
@@ -147,6 +148,39 @@ def test_float32_gradient_is_close_to_the_exact_derivative(sim):
         v, h = getattr(theta, name), steps[name]
         fd = (loss(theta.replace(**{name: v + h})) - loss(theta.replace(**{name: v - h}))) / (2 * h)
         assert grads[name] == pytest.approx(fd, rel=F32_TOLERANCE), name
+
+
+def test_the_memory_estimate_is_what_the_fields_take(sim):
+    from taichi.lang.field import Field
+    from taichi.lang.matrix import MatrixField
+
+    def nbytes(field):
+        components = field.n * field.m if isinstance(field, MatrixField) else 1
+        return np.prod(field.shape) * components * np.dtype(ti.lang.util.to_numpy_type(field.dtype)).itemsize
+
+    allocated = sum(nbytes(v) for v in vars(sim).values() if isinstance(v, Field))
+    assert sum(field_bytes(CONFIG).values()) == pytest.approx(allocated, rel=1e-4)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"cfl": 1e-4}, r"1.54e\+03 GB for the particle state in 855561 substep slots × 5000 particles.*more than the 24 GB "
+                    r"of memory available here; .*raise simulator.cfl \(now 0.0001; it sets the 855560 substeps"),
+    ({"max_particles": 10 ** 6}, r"46.8 GB .*124 substep slots × 1000000 particles.*lower simulator.max_particles "
+                                 r"\(now 1000000; --max-particles on the command line\)"),
+])
+def test_a_simulator_that_would_not_fit_in_memory_is_refused_before_it_allocates(monkeypatch, change, message):
+    monkeypatch.setattr(memory, "available_memory", lambda: 24e9)
+    monkeypatch.setattr(mpm, "ensure_taichi", lambda *args: pytest.fail("Taichi was asked for the fields"))
+    with pytest.raises(SimulationError, match=message):
+        Simulator(SimulatorConfig(**change))
+
+
+def test_a_scene_whose_checkpoints_would_not_fit_in_memory_is_refused(sim, monkeypatch):
+    particles = block()
+    monkeypatch.setattr(memory, "available_memory", lambda: 1e5)
+    with pytest.raises(SimulationError, match=rf"for the checkpoints of this scene \(31 steps × {len(particles)} "
+                                              r"particles\), more than the 0.0001 GB.*use fewer particles"):
+        sim.forward(far_scene(particles), HAND_PICKED)
 
 
 def test_a_second_precision_in_one_process_is_refused(sim):

@@ -50,6 +50,7 @@ from .config import Scene, SimulationError, SimulatorConfig
 from .constitutive import (compose, compose_adjoint, lame_gradient, lame_parameters, plastic_flow,
                            plastic_flow_adjoint, principal_stress, principal_stress_adjoint)
 from .contact import effector_normal, effector_sdf, frictional_contact, frictional_contact_adjoint, rotation_z
+from .memory import GB, check_fits
 from .runtime import ensure_taichi
 from .svd import svd_backward, warm_started_svd
 
@@ -74,9 +75,45 @@ U (9), σ (3), V (9)."""
 MATERIAL_GRADIENTS = ("shear", "lam", "particle_mass", "yield_stress", "mu_table", "mu_effector")
 """Order of the per-particle parameter gradients (the friction ones also per grid node, last two)."""
 
+PARTICLE_FLOATS = 109
+"""Floats per particle outside the substep slots: V at the step's start, the affine momentum and elastic
+stretches (21), contact (7), the state gradients in two slots (48) and the others (9), and the sorted
+transfer buffers (24); plus one 32-bit integer (its rank in bin order)."""
+
+NODE_FLOATS = 23
+"""Floats per grid node: mass, momentum, velocity (7), contact (7) and their gradients with the friction
+sums (9); plus two 32-bit integers (its bin's count and first index)."""
+
 NUMPY_FLOAT = {"f64": np.float64, "f32": np.float32}
 
 MIB = 2.0 ** 20
+
+
+def field_bytes(config: SimulatorConfig) -> dict[str, float]:
+    """Bytes of the Taichi fields of a simulator of ``config``, by what they hold: "slots" the particle
+    state in each of the max_substeps + 1 substep slots of a step, "particles" the rest per particle,
+    "grid" the grid nodes, "effector" its distance grid and the trajectory."""
+    size = np.dtype(NUMPY_FLOAT[config.precision]).itemsize
+    n = config.max_particles
+    return {"slots": (config.max_substeps + 1) * n * SUBSTEP_WIDTH * size,
+            "particles": n * (PARTICLE_FLOATS * size + 4),
+            "grid": float(np.prod(config.grid_shape)) * (NODE_FLOATS * size + 2 * 4),
+            "effector": (SDF_GRID_RESOLUTION ** 3 + 4 * (config.max_steps + 1)) * size}
+
+
+def check_capacity(config: SimulatorConfig) -> None:
+    """Raise :class:`SimulationError`, naming the settings to change, if the fields of a simulator of
+    ``config`` and the substep states it may keep do not fit in the memory available."""
+    need = field_bytes(config)
+    slots, (nx, ny, nz) = config.max_substeps + 1, config.grid_shape
+    check_fits(sum(need.values()) + config.substep_memory_mb * MIB,
+               f"the particle state in {slots} substep slots × {config.max_particles} particles "
+               f"({need['slots'] / GB:.3g} GB), the rest of the particles ({need['particles'] / GB:.3g} GB), the grid "
+               f"{nx}×{ny}×{nz} ({need['grid'] / GB:.3g} GB) and the substep states it may keep "
+               f"({config.substep_memory_mb * MIB / GB:.3g} GB)",
+               f"lower simulator.max_particles (now {config.max_particles}; --max-particles on the command line), "
+               f"or raise simulator.cfl (now {config.cfl:g}; it sets the {config.max_substeps} substeps per step at "
+               f"the stiffest parameters) or simulator.dx (now {config.dx:g} m)")
 
 
 def mapped_array(size: int, dtype) -> np.ndarray:
@@ -102,6 +139,7 @@ class Simulator:
 
     def __init__(self, config: "SimulatorConfig | None" = None):
         self.config = config or SimulatorConfig()
+        check_capacity(self.config)
         ensure_taichi(self.config.arch, self.config.precision, self.config.threads)
         c = self.config
         self.float = NUMPY_FLOAT[c.precision]
@@ -869,6 +907,9 @@ class Simulator:
         # let the last run's checkpoints go before this run's exist: both at once set the peak memory
         self._params = self._checkpoints = self._substates = None
         n, steps = len(scene.particles), scene.trajectory.n_steps
+        check_fits((steps + 1) * n * STATE_WIDTH * np.dtype(self.float).itemsize,
+                   f"the checkpoints of this scene ({steps + 1} steps × {n} particles)",
+                   "use fewer particles (a lower particle density) or a shorter trajectory")
         checkpoints = np.empty((steps + 1, n, STATE_WIDTH), dtype=self.float)
         checkpoints[0] = 0.0
         checkpoints[0, :, :3] = scene.particles
