@@ -1,6 +1,6 @@
 """Benchmarks that print figures (not timed tests), and the measurement behind the cost table.
 
-    python -m dpsi.bench simulator [--json] [--density 4e7] [--motions poking-1 ...] [--arch cuda] [--precision f32]
+    python -m dpsi.bench simulator [--json] [--density 4e7] [--motions poking-1 ...] [--arch cuda]
     python -m dpsi.bench scaling [--json] [--density 3.3e8] [--motion poking-1]
     python -m dpsi.bench losses [--json] [--points 3000]
 
@@ -227,7 +227,6 @@ def main(argv=None) -> None:
     sim.add_argument("--motions", nargs="+", default=list(BENCH_MOTIONS), choices=list(BENCH_MOTIONS))
     sim.add_argument("--json", action="store_true", help="print one JSON list of records")
     sim.add_argument("--arch", choices=sorted(TARGETS), default="cpu", help="where Taichi runs (default cpu)")
-    sim.add_argument("--precision", choices=["f64", "f32"], default="f64", help="floating point (default f64)")
     scaling = sub.add_parser("scaling", help="speed-up of every CPU thread over one on a larger scene")
     scaling.add_argument("--density", type=float, default=3.3e8, help="particles per m³ (default 3.3e8)")
     scaling.add_argument("--motion", default="poking-1", choices=list(BENCH_MOTIONS))
@@ -248,7 +247,7 @@ def main(argv=None) -> None:
         config = SimulatorConfig(**json.loads(args.simulator))
         print(json.dumps(measure_simulation(args.motion, args.density, args.iterations, config)))
     elif args.what == "simulator":
-        settings = {"arch": args.arch, "precision": args.precision}
+        settings = {"arch": args.arch}
         records = []
         with Progress(len(args.motions), "benchmark") as bar:
             for k, motion in enumerate(args.motions, 1):
@@ -259,7 +258,7 @@ def main(argv=None) -> None:
             print(json.dumps(records))
         else:
             print_table(records, (*SIMULATOR_KEYS, "first_forward_s", "first_backward_s", "taichi_cache"))
-            print(f"\ntargets ({args.arch}, {args.precision}):")
+            print(f"\ntargets ({args.arch}):")
             print("\n".join(target_lines(records, args.arch)))
     elif args.what == "scaling":
         records = measure_scaling(args.motion, args.density)

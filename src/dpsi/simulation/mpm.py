@@ -84,8 +84,6 @@ NODE_FLOATS = 23
 """Floats per grid node: mass, momentum, velocity (7), contact (7) and their gradients with the friction
 sums (9); plus two 32-bit integers (its bin's count and first index)."""
 
-NUMPY_FLOAT = {"f64": np.float64, "f32": np.float32}
-
 MIB = 2.0 ** 20
 
 
@@ -93,7 +91,7 @@ def field_bytes(config: SimulatorConfig) -> dict[str, float]:
     """Bytes of the Taichi fields of a simulator of ``config``, by what they hold: "slots" the particle
     state in each of the max_substeps + 1 substep slots of a step, "particles" the rest per particle,
     "grid" the grid nodes, "effector" its distance grid and the trajectory."""
-    size = np.dtype(NUMPY_FLOAT[config.precision]).itemsize
+    size = np.dtype(np.float64).itemsize
     n = config.max_particles
     return {"slots": (config.max_substeps + 1) * n * SUBSTEP_WIDTH * size,
             "particles": n * (PARTICLE_FLOATS * size + 4),
@@ -140,9 +138,8 @@ class Simulator:
     def __init__(self, config: "SimulatorConfig | None" = None):
         self.config = config or SimulatorConfig()
         check_capacity(self.config)
-        ensure_taichi(self.config.arch, self.config.precision, self.config.threads)
+        ensure_taichi(self.config.arch, self.config.threads)
         c = self.config
-        self.float = NUMPY_FLOAT[c.precision]
         self.dx = c.dx
         self.inv_dx = 1.0 / c.dx
         self.grid_shape = c.grid_shape
@@ -225,7 +222,7 @@ class Simulator:
         self._origin = self._tips = self._effector_bounds = None  # of the current scene, for _begin_step
         self._checkpoints = None
         self._substates = None
-        self._substep_buffer = np.empty(0, dtype=self.float)
+        self._substep_buffer = np.empty(0, dtype=np.float64)
         self.substeps = 0
         self.serial = c.serial_loops
 
@@ -856,11 +853,11 @@ class Simulator:
         self.table_z[None] = scene.table_z
         self.particle_volume[None] = scene.particle_volume
         self._set_effector(scene.effector)
-        padded = np.zeros((c.max_steps + 1, 3), dtype=self.float)
+        padded = np.zeros((c.max_steps + 1, 3), dtype=np.float64)
         padded[: steps + 1] = tips
         self.tip.from_numpy(padded)
         self._tips = tips
-        padded_yaw = np.zeros(c.max_steps + 1, dtype=self.float)
+        padded_yaw = np.zeros(c.max_steps + 1, dtype=np.float64)
         padded_yaw[: steps + 1] = yaws
         self.yaw.from_numpy(padded_yaw)
 
@@ -907,10 +904,10 @@ class Simulator:
         # let the last run's checkpoints go before this run's exist: both at once set the peak memory
         self._params = self._checkpoints = self._substates = None
         n, steps = len(scene.particles), scene.trajectory.n_steps
-        check_fits((steps + 1) * n * STATE_WIDTH * np.dtype(self.float).itemsize,
+        check_fits((steps + 1) * n * STATE_WIDTH * np.dtype(np.float64).itemsize,
                    f"the checkpoints of this scene ({steps + 1} steps × {n} particles)",
                    "use fewer particles (a lower particle density) or a shorter trajectory")
-        checkpoints = np.empty((steps + 1, n, STATE_WIDTH), dtype=self.float)
+        checkpoints = np.empty((steps + 1, n, STATE_WIDTH), dtype=np.float64)
         checkpoints[0] = 0.0
         checkpoints[0, :, :3] = scene.particles
         checkpoints[0, :, 15:24] = np.eye(3).reshape(1, 9)
@@ -940,8 +937,8 @@ class Simulator:
         if size * self._substep_buffer.itemsize > self.config.substep_memory_mb * MIB:
             return None
         if self._substep_buffer.size < size:
-            self._substep_buffer = np.empty(0, dtype=self.float)
-            self._substep_buffer = mapped_array(size, self.float)
+            self._substep_buffer = np.empty(0, dtype=np.float64)
+            self._substep_buffer = mapped_array(size, np.float64)
         return self._substep_buffer[:size].reshape(shape)
 
     def final_positions(self) -> np.ndarray:
@@ -966,7 +963,7 @@ class Simulator:
         if self._checkpoints is None:
             raise SimulationError("backward() needs a forward() first")
         checkpoints = self._checkpoints
-        grad_positions = np.ascontiguousarray(grad_positions, dtype=self.float)
+        grad_positions = np.ascontiguousarray(grad_positions, dtype=np.float64)
         if grad_positions.shape != checkpoints.shape[1:2] + (3,):
             raise ValueError(f"gradient has shape {grad_positions.shape}, expected {(checkpoints.shape[1], 3)}")
         odd = self.substeps % 2
