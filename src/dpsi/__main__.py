@@ -13,7 +13,6 @@ import contextlib
 import csv
 import json
 import logging
-import math
 import os
 import sys
 from pathlib import Path
@@ -22,6 +21,7 @@ import yaml
 
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "false")  # stdout is for results; set before Taichi loads
 
+from dpsi.arguments import at_least, finite, positive
 from dpsi.datapoint import Datapoint
 from dpsi.effectors import BUILT_IN, by_name
 from dpsi.identification import IdentificationError, evaluate, identify
@@ -90,39 +90,6 @@ def _param(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"value of {name} must be a number, got {value!r}") from None
 
 
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
-    return value
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return value
-
-
-def _at_least(minimum: int):
-    """An argparse type: an integer ≥ ``minimum``."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = minimum - 1
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be an integer ≥ {minimum}, got {text!r}")
-        return value
-    return parse
-
-
 def _shape_options(parser: argparse.ArgumentParser, many: bool) -> None:
     each = (" (repeat once per datapoint; a single --motion/--effector applies to all; or give --datapoints)"
             if many else "")
@@ -140,11 +107,11 @@ def _shape_options(parser: argparse.ArgumentParser, many: bool) -> None:
                         help="first register where the robot really went (the motion's offset, up to a few mm) "
                              "from the dent in the after shape, at the hand-picked values, and simulate that "
                              "path (dpsi.motion_offsets)")
-    parser.add_argument("--density", type=_positive, default=DENSITY, metavar="D",
+    parser.add_argument("--density", type=positive, default=DENSITY, metavar="D",
                         help=f"particle density in particles/m³ (default {DENSITY:g})")
-    parser.add_argument("--table-z", type=_finite, metavar="Z",
+    parser.add_argument("--table-z", type=finite, metavar="Z",
                         help="table height in m (default: the before shape's lowest point)")
-    parser.add_argument("--max-particles", type=_at_least(1), default=MAX_PARTICLES, metavar="N",
+    parser.add_argument("--max-particles", type=at_least(1), default=MAX_PARTICLES, metavar="N",
                         help=f"particle capacity of the simulator (default {MAX_PARTICLES}); more needs more memory")
 
 
@@ -179,8 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--loss", required=True, choices=list(LOSSES), help="training loss")
     ident.add_argument("--level", type=int, default=1, choices=sorted(IDENTIFIED),
                        help="1: identify E, nu, rho, yield_stress (frictions fixed); 2: all six (default 1)")
-    ident.add_argument("--seed", type=_at_least(0), default=0, help="seed of the random initial values (default 0)")
-    ident.add_argument("--iterations", type=_at_least(1), default=100, help="Adam updates (default 100)")
+    ident.add_argument("--seed", type=at_least(0), default=0, help="seed of the random initial values (default 0)")
+    ident.add_argument("--iterations", type=at_least(1), default=100, help="Adam updates (default 100)")
     ident.add_argument("--initial", choices=["random", "hand-picked"], default="random",
                        help="initial values: uniform random from --seed, or the hand-picked ones (default random)")
     ident.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
