@@ -137,7 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     ident = commands.add_parser("identify", help="identify the parameters from (before, after) pairs",
                                 description="Gradient-based identification (SPEC §6). Writes log.csv, "
-                                            "summary.json and state.json to --out; rerunning resumes.")
+                                            "summary.json and state.json to --out (never over such files it did "
+                                            "not write; one run per folder at a time); rerunning resumes.")
     ident.set_defaults(parser=ident)
     _shape_options(ident, many=True)
     ident.add_argument("--validate", nargs=4, action="append", default=[],
