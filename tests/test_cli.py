@@ -277,5 +277,5 @@ def test_a_capacity_beyond_the_memory_is_refused_naming_the_option(capsys, monke
     monkeypatch.setattr(memory, "available_memory", lambda: 24e9)
     assert main(["simulate", *shapes, "--max-particles", "1000000"]) == 1
     error = capsys.readouterr().err
-    assert error.startswith("dpsi simulate: error: the simulator would need 46.8 GB") and error.count("\n") == 1
+    assert error.startswith("dpsi simulate: error: the simulator would need 45.5 GB") and error.count("\n") == 1
     assert "lower simulator.max_particles (now 1000000; --max-particles on the command line)" in error

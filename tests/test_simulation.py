@@ -112,9 +112,10 @@ def test_the_memory_estimate_is_what_the_fields_take(sim):
 
 
 @pytest.mark.parametrize("change, message", [
-    ({"cfl": 1e-4}, r"1.54e\+03 GB for the particle state in 855561 substep slots × 5000 particles.*more than the 24 GB "
+    ({"cfl": 1e-4}, r"1.54e\+03 GB for its fields: the particle state in 855561 substep slots × 5000 particles.*more "
+                    r"than the 24 GB "
                     r"of memory available here; .*raise simulator.cfl \(now 0.0001; it sets the 855560 substeps"),
-    ({"max_particles": 10 ** 6}, r"46.8 GB .*124 substep slots × 1000000 particles.*lower simulator.max_particles "
+    ({"max_particles": 10 ** 6}, r"45.5 GB .*124 substep slots × 1000000 particles.*lower simulator.max_particles "
                                  r"\(now 1000000; --max-particles on the command line\)"),
 ])
 def test_a_simulator_that_would_not_fit_in_memory_is_refused_before_it_allocates(monkeypatch, change, message):
@@ -204,6 +205,19 @@ def test_backward_recomputing_each_step_matches_backward_from_kept_substeps(sim,
     recomputed = sim.backward(weights)
     for name in NAMES:
         assert recomputed[name] == pytest.approx(kept[name], rel=1e-9, abs=1e-12), name
+
+
+def test_substep_states_beyond_the_memory_available_are_recomputed(sim, monkeypatch):
+    """Within the budget but not in the memory there is: the forward pass keeps no substeps (and
+    does not fail); checkpoints that fit still do."""
+    particles = block(jitter=5e-4)
+    s = scene(particles, path(30, dx=0.0002), effectors.ROUND, depth=0.001)
+    checkpoints = 31 * len(particles) * mpm.STATE_WIDTH * 8
+    monkeypatch.setattr(sim, "_substep_buffer", np.empty(0))
+    monkeypatch.setattr(memory, "available_memory", lambda: 2 * checkpoints)
+    sim.forward(s, HAND_PICKED)
+    assert sim._substates is None and sim._substep_buffer.size == 0
+    assert np.isfinite(sim.backward(np.ones_like(particles))["E"])
 
 
 @pytest.mark.parametrize("transfers", ["gather", "atomic scatter"])

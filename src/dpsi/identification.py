@@ -415,7 +415,8 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
     held = tuple(known or ())
     fingerprint = _fingerprint(level, loss, seed, initial, training, validation_set, held)
     key = inputs_key(training, validation_set, config)
-    with (claimed(out_dir, (STATE_FILE, LOG_FILE, SUMMARY_FILE), "dpsi identify", progress, adopt=_is_state) as out_dir,
+    files = (STATE_FILE, LOG_FILE, SUMMARY_FILE)
+    with (claimed(out_dir, files, "dpsi identify", progress, adopt=_is_state) as out_dir,
           Progress(iterations, f"identify L{level} {loss} seed {seed}", progress) as bar):
         state_file = out_dir / STATE_FILE
         adam, rows = _resume(state_file, fingerprint, key, lambda: Adam.for_level(initial, level, held), initial,
@@ -441,7 +442,8 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
             _save_state(state_file, fingerprint, key, adam, rows)
             row = rows[-1]
             bar.update(row["iteration"], f"loss {row['train_loss_mm']:.1f} mm, val height map "
-                                         f"{row['val_heightmap_mm']:.1f} mm, skipped {row['skipped']}, {row['wall_s']:.1f} s")
+                                         f"{row['val_heightmap_mm']:.1f} mm, skipped {row['skipped']}, "
+                                         f"{row['wall_s']:.1f} s")
         with atomic_output(out_dir / LOG_FILE) as tmp:
             pd.DataFrame(rows, columns=list(COLUMNS)).to_csv(tmp, index=False)
         summary = summarise(rows, fingerprint, iterations, truth, labels, select)

@@ -50,7 +50,7 @@ from .config import Scene, SimulationError, SimulatorConfig
 from .constitutive import (compose, compose_adjoint, lame_gradient, lame_parameters, plastic_flow,
                            plastic_flow_adjoint, principal_stress, principal_stress_adjoint)
 from .contact import effector_normal, effector_sdf, frictional_contact, frictional_contact_adjoint, rotation_z
-from .memory import GB, check_fits
+from . import memory
 from .runtime import ensure_taichi
 from .svd import svd_backward, warm_started_svd
 
@@ -101,17 +101,16 @@ def field_bytes(config: SimulatorConfig) -> dict[str, float]:
 
 def check_capacity(config: SimulatorConfig) -> None:
     """Raise :class:`SimulationError`, naming the settings to change, if the fields of a simulator of
-    ``config`` and the substep states it may keep do not fit in the memory available."""
-    need = field_bytes(config)
+    ``config`` do not fit in the memory available (Taichi touches all of them when a kernel first runs)."""
+    need = {what: size / memory.GB for what, size in field_bytes(config).items()}
     slots, (nx, ny, nz) = config.max_substeps + 1, config.grid_shape
-    check_fits(sum(need.values()) + config.substep_memory_mb * MIB,
-               f"the particle state in {slots} substep slots × {config.max_particles} particles "
-               f"({need['slots'] / GB:.3g} GB), the rest of the particles ({need['particles'] / GB:.3g} GB), the grid "
-               f"{nx}×{ny}×{nz} ({need['grid'] / GB:.3g} GB) and the substep states it may keep "
-               f"({config.substep_memory_mb * MIB / GB:.3g} GB)",
-               f"lower simulator.max_particles (now {config.max_particles}; --max-particles on the command line), "
-               f"or raise simulator.cfl (now {config.cfl:g}; it sets the {config.max_substeps} substeps per step at "
-               f"the stiffest parameters) or simulator.dx (now {config.dx:g} m)")
+    memory.check_fits(sum(need.values()) * memory.GB,
+                      f"its fields: the particle state in {slots} substep slots × {config.max_particles} "
+                      f"particles ({need['slots']:.3g} GB), the rest of the particles ({need['particles']:.3g} GB) "
+                      f"and the grid {nx}×{ny}×{nz} ({need['grid']:.3g} GB)",
+                      f"lower simulator.max_particles (now {config.max_particles}; --max-particles on the command "
+                      f"line), or raise simulator.cfl (now {config.cfl:g}; it sets the {config.max_substeps} substeps "
+                      f"per step at the stiffest parameters) or simulator.dx (now {config.dx:g} m)")
 
 
 def mapped_array(size: int, dtype) -> np.ndarray:
@@ -904,7 +903,7 @@ class Simulator:
         # let the last run's checkpoints go before this run's exist: both at once set the peak memory
         self._params = self._checkpoints = self._substates = None
         n, steps = len(scene.particles), scene.trajectory.n_steps
-        check_fits((steps + 1) * n * STATE_WIDTH * np.dtype(np.float64).itemsize,
+        memory.check_fits((steps + 1) * n * STATE_WIDTH * np.dtype(np.float64).itemsize,
                    f"the checkpoints of this scene ({steps + 1} steps × {n} particles)",
                    "use fewer particles (a lower particle density) or a shorter trajectory")
         checkpoints = np.empty((steps + 1, n, STATE_WIDTH), dtype=np.float64)
@@ -930,14 +929,18 @@ class Simulator:
         return self.final_positions()
 
     def _substep_storage(self, n: int, steps: int) -> "np.ndarray | None":
-        """Room for every substep state of the trajectory, or None if it exceeds the memory budget.
-        The buffer is kept and reused by later calls (fresh memory costs a page fault per 4 KiB)."""
+        """Room for every substep state of the trajectory, or None if it exceeds the memory budget or the
+        memory available (the backward pass then recomputes them). The buffer is kept and reused by later
+        calls (fresh memory costs a page fault per 4 KiB)."""
         shape = (steps, self.substeps, n, SUBSTEP_WIDTH)
         size = int(np.prod(shape))
         if size * self._substep_buffer.itemsize > self.config.substep_memory_mb * MIB:
             return None
         if self._substep_buffer.size < size:
             self._substep_buffer = np.empty(0, dtype=np.float64)
+            available = memory.available_memory()
+            if available is not None and size * self._substep_buffer.itemsize > available:
+                return None
             self._substep_buffer = mapped_array(size, np.float64)
         return self._substep_buffer[:size].reshape(shape)
 
