@@ -3,6 +3,7 @@
 import json
 import math
 import re
+import signal
 import subprocess
 import sys
 
@@ -15,6 +16,7 @@ from dpsi.__main__ import build_parser, main
 from dpsi.parameters import HAND_PICKED
 from dpsi.pointclouds import write_mesh, write_points
 from dpsi.prepare import surface_points
+from dpsi.simulation import SimulationError, Simulator, memory
 
 KEYS = {"particles", "heightmap_mm", "pcd_cd", "prt_cd", "pcd_emd", "prt_emd", "params", "repairs"}
 
@@ -283,3 +285,55 @@ def test_a_repaired_before_mesh_is_reported(tmp_path):
     repairs = {r["what"]: r for r in json.loads(done.stdout)["repairs"]}
     assert repairs["duplicated face(s) removed"]["count"] == 1
     assert repairs["face(s) added to close holes"]["file"] == str(tmp_path / "scan.obj")
+
+
+def test_an_out_that_is_a_file_is_named_before_the_shapes_are_prepared(capsys, monkeypatch, shapes, tmp_path):
+    (tmp_path / "run").write_text("")
+    monkeypatch.setattr(cli, "_shapes_datapoint", lambda *args: pytest.fail("shapes prepared"))
+    assert main(["identify", *shapes, "--loss", "prt_cd", "--out", str(tmp_path / "run")]) == 1
+    assert capsys.readouterr().err == (f"dpsi identify: error: output folder {tmp_path / 'run'} is a file; give a "
+                                       "folder (it is created if missing)\n")
+
+
+def test_a_run_whose_simulations_all_fail_exits_non_zero_with_the_cause(capsys, monkeypatch, shapes, tmp_path):
+    def unstable(self, scene, params, keep_substeps=True):
+        raise SimulationError("step 4 of 250 produced NaN or inf")
+
+    monkeypatch.setattr(Simulator, "forward", unstable)
+    assert main(["identify", *shapes, "--loss", "prt_cd", "--iterations", "2", "--out", str(tmp_path)]) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and err.endswith("dpsi identify: error: nothing to learn from at iteration 0: every training "
+                                      "datapoint was skipped (parameters " + err.split("(parameters ")[1])
+    assert "before: simulation failed: step 4 of 250 produced NaN or inf" in err
+    assert not (tmp_path / "summary.json").exists()
+
+
+def test_ctrl_c_exits_with_130_one_line_and_a_resume_hint(shapes, tmp_path):
+    """SIGINT once the first iteration is saved; the same command then resumes from it."""
+    args = [sys.executable, "-m", "dpsi", "identify", *shapes, "--loss", "prt_cd", "--iterations", "3",
+            "--initial", "hand-picked", "--out", str(tmp_path)]
+    # a shell's background job inherits SIGINT ignored, and Python then keeps it so: restore the default
+    run = subprocess.Popen(args, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    lines = []
+    for line in run.stderr:
+        lines.append(line)
+        if line.startswith("identify L1 prt_cd seed 0 1/3"):
+            run.send_signal(signal.SIGINT)
+            break
+    rest = run.stderr.read()
+    assert run.wait(timeout=600) == 130, "".join(lines) + rest
+    assert rest.strip().splitlines()[-1] == (f"dpsi identify: interrupted; run the same command again to resume from "
+                                            f"its last completed iteration (kept in {tmp_path})")
+    assert "Traceback" not in rest and not (tmp_path / ".dpsi.lock").exists()
+    again = subprocess.run(args, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    assert "seed 0 1/3" not in again.stderr and "seed 0 3/3" in again.stderr  # resumed after row 1
+
+
+def test_a_capacity_beyond_the_memory_is_refused_naming_the_option(capsys, monkeypatch, shapes):
+    monkeypatch.setattr(memory, "available_memory", lambda: 24e9)
+    assert main(["simulate", *shapes, "--max-particles", "1000000"]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("dpsi simulate: error: the simulator would need 45.5 GB") and error.count("\n") == 1
+    assert "lower simulator.max_particles (now 1000000; --max-particles on the command line)" in error

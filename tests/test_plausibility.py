@@ -4,7 +4,6 @@ number; a good synthetic pair and the published real pairs pass."""
 import dataclasses
 import re
 
-import numpy as np
 import open3d as o3d
 import pytest
 

@@ -2,7 +2,6 @@
 one-iteration smoke of it that goes from the published meshes to the tables."""
 
 import pandas as pd
-import pytest
 import yaml
 
 from conftest import ROOT, shared, snakemake

@@ -26,6 +26,7 @@ def edited_config(tmp_path, edit):
     (lambda c: c["identification"].update(losses=["prt_chamfer"]), "prt_chamfer"),
     (lambda c: c["identification"].update(datasets=["3-mix"]), "3-mix"),
     (lambda c: c.update(colour="blue"), "colour"),
+    (lambda c: c.setdefault("simulator", {}).update(precision="f32"), "precision"),  # float32 was removed
     (lambda c: c["reconstruction"].update(density=-1), "density"),
     (lambda c: c["identification"].update(known={"density": 1200}), "density"),
     (lambda c: c["identification"].update(known={"rho": 5000}), "5000"),

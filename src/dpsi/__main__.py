@@ -13,7 +13,6 @@ import contextlib
 import csv
 import json
 import logging
-import math
 import os
 import sys
 from pathlib import Path
@@ -22,12 +21,14 @@ import yaml
 
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "false")  # stdout is for results; set before Taichi loads
 
+from dpsi.arguments import at_least, finite, positive
 from dpsi.datapoint import Datapoint
 from dpsi.effectors import BUILT_IN, by_name
-from dpsi.identification import evaluate, identify
+from dpsi.identification import IdentificationError, evaluate, identify
 from dpsi.motion_offsets import register, shifted
 from dpsi.losses import LOSSES
 from dpsi.motions import MOTIONS, check_effector, get_motion, trajectory
+from dpsi.output_folder import writable_folder
 from dpsi.parameters import (HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, NAMES, UNITS, Parameters, at_bound, hand_picked,
                              random_initial)
 from dpsi.plausibility import check_plausible
@@ -97,39 +98,6 @@ def _param(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"value of {name} must be a number, got {value!r}") from None
 
 
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
-    return value
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return value
-
-
-def _at_least(minimum: int):
-    """An argparse type: an integer ≥ ``minimum``."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = minimum - 1
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be an integer ≥ {minimum}, got {text!r}")
-        return value
-    return parse
-
-
 def _shape_options(parser: argparse.ArgumentParser, many: bool) -> None:
     each = (" (repeat once per datapoint; a single --motion/--effector applies to all; or give --datapoints)"
             if many else "")
@@ -147,11 +115,11 @@ def _shape_options(parser: argparse.ArgumentParser, many: bool) -> None:
                         help="first register where the robot really went (the motion's offset, up to a few mm) "
                              "from the dent in the after shape, at the hand-picked values, and simulate that "
                              "path (dpsi.motion_offsets)")
-    parser.add_argument("--density", type=_positive, default=DENSITY, metavar="D",
+    parser.add_argument("--density", type=positive, default=DENSITY, metavar="D",
                         help=f"particle density in particles/m³ (default {DENSITY:g})")
-    parser.add_argument("--table-z", type=_finite, metavar="Z",
+    parser.add_argument("--table-z", type=finite, metavar="Z",
                         help="table height in m (default: the before shape's lowest point)")
-    parser.add_argument("--max-particles", type=_at_least(1), default=MAX_PARTICLES, metavar="N",
+    parser.add_argument("--max-particles", type=at_least(1), default=MAX_PARTICLES, metavar="N",
                         help=f"particle capacity of the simulator (default {MAX_PARTICLES}); more needs more memory")
 
 
@@ -177,7 +145,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     ident = commands.add_parser("identify", help="identify the parameters from (before, after) pairs",
                                 description="Gradient-based identification (SPEC §6). Writes log.csv, "
-                                            "summary.json and state.json to --out; rerunning resumes.")
+                                            "summary.json and state.json to --out (never over such files it did "
+                                            "not write; one run per folder at a time); rerunning resumes.")
     ident.set_defaults(parser=ident)
     _shape_options(ident, many=True)
     ident.add_argument("--validate", nargs=4, action="append", default=[],
@@ -186,8 +155,8 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--loss", required=True, choices=list(LOSSES), help="training loss")
     ident.add_argument("--level", type=int, default=1, choices=sorted(IDENTIFIED),
                        help="1: identify E, nu, rho, yield_stress (frictions fixed); 2: all six (default 1)")
-    ident.add_argument("--seed", type=_at_least(0), default=0, help="seed of the random initial values (default 0)")
-    ident.add_argument("--iterations", type=_at_least(1), default=100, help="Adam updates (default 100)")
+    ident.add_argument("--seed", type=at_least(0), default=0, help="seed of the random initial values (default 0)")
+    ident.add_argument("--iterations", type=at_least(1), default=100, help="Adam updates (default 100)")
     ident.add_argument("--initial", choices=["random", "hand-picked"], default="random",
                        help="initial values: uniform random from --seed, or the hand-picked ones (default random)")
     ident.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
@@ -310,6 +279,7 @@ def _identify(parser, args, repairs: list[dict]) -> list[str]:
                      "drop the option, or identify the frictions with --level 2")
     base = HAND_PICKED if args.initial == "hand-picked" else random_initial(args.seed, args.level)
     initial = _params(parser, base, args.param)
+    writable_folder(args.out)  # before the shapes are prepared; identify claims it before simulating
     config = SimulatorConfig(max_particles=args.max_particles)
     training = [_shapes_datapoint(*row, args.density, args.table_z, config) for row in rows]
     validation_set = ([_shapes_datapoint(*quad, args.density, args.table_z, config) for quad in args.validate]
@@ -323,15 +293,18 @@ def _identify(parser, args, repairs: list[dict]) -> list[str]:
     summary = identify(args.out, args.level, args.loss, training, validation_set, args.seed, args.iterations,
                        initial, simulator=simulator, known=dict(args.known))
     best = summary["best"]
-    head = ("no iteration has a finite validation height-map distance; final parameters:" if best is None else
-            f"best iteration {best['iteration']} (validation height map {best['validation']['heightmap_mm']:.1f} mm):")
-    values = (best or summary["final"])["parameters"]
+    if best is None:
+        raise IdentificationError(f"no updated iteration could be validated (every validation simulation failed "
+                                  f"or gave no finite height-map distance: see val_skipped in "
+                                  f"{Path(args.out) / 'log.csv'}); nothing identified")
     held = [f"{name} was held at the given value (--known)" for name, _ in args.known]
+    values = best["parameters"]
     bounds = at_bound(values, [n for n in IDENTIFIED[args.level] if n not in dict(args.known)])
     marked = (f"{name}: {value:g} {UNITS[name]}" + (f" (at its {bounds[name]} bound: the data may want a value outside "
                                                     "the range)" if name in bounds else "")
               for name, value in values.items())
-    return [head, *marked, *held,
+    return [f"best iteration {best['iteration']} (validation height map {best['validation']['heightmap_mm']:.1f} mm):",
+            *marked, *held,
             *(f"motion offset of {i}: {mm} mm" for i, mm in offsets.items()), *_repair_lines(repairs),
             f"saved in {Path(args.out) / 'summary.json'}"]
 
@@ -379,6 +352,11 @@ def main(argv: list[str] | None = None) -> int:
         message = err.args[0] if isinstance(err, KeyError) and err.args else err
         print(f"dpsi {args.command}: error: {message}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        again = (f"run the same command again to resume from its last completed iteration (kept in {args.out})"
+                 if args.command == "identify" else "run the same command again")
+        print(f"dpsi {args.command}: interrupted; {again}", file=sys.stderr)
+        return 130
     print("\n".join(lines))
     return 0
 

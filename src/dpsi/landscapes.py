@@ -121,7 +121,7 @@ def save_landscape(path: str | os.PathLike, landscape: Landscape) -> None:
 
 def load_landscape(path: str | os.PathLike) -> Landscape:
     """Read a landscape written by :func:`save_landscape`; errors name the file."""
-    meta, data = load_arrays(path, _ARRAYS, "landscape")
+    meta, data = load_arrays(path, _ARRAYS, "landscape", "landscape")
     try:
         return Landscape(Pair(meta["first"], meta["second"], int(meta["level"])), tuple(meta["losses"]),
                          data["first"], data["second"], data["values"], Parameters.from_array(data["fixed"]))

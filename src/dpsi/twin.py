@@ -174,7 +174,7 @@ def write_ground_truth(path: str | os.PathLike, truth: GroundTruth) -> None:
 
 def load_ground_truth(path: str | os.PathLike) -> GroundTruth:
     """Read a ground truth written by :func:`write_ground_truth`; errors name the file."""
-    meta, arrays = load_arrays(path, _GROUND_TRUTH_ARRAYS, "twin ground-truth")
+    meta, arrays = load_arrays(path, _GROUND_TRUTH_ARRAYS, "twin ground-truth", "twin_datapoint")
     meta["parameters"] = Parameters.checked(**meta["parameters"])
     meta["motion_offset"] = tuple(meta.get("motion_offset", (0.0, 0.0, 0.0)))
     return GroundTruth(**meta, **{k: a.astype(float) for k, a in arrays.items()})

@@ -15,7 +15,6 @@ from ..motions import DT, Trajectory
 from ..parameters import STIFFEST, Parameters
 
 
-PRECISIONS = ("f64", "f32")
 
 WALL_CELLS = 3
 """Nodes this close to the box's faces stop outward motion (the box walls)."""
@@ -51,15 +50,11 @@ class SimulatorConfig:
     """Run the particle and grid loops that scatter to the grid, and the light ones, on one thread (True)
     or on all (False: on the CPU the transfers then gather at the nodes, on a GPU they add atomically);
     None chooses by ``arch``: see :attr:`serial_loops`."""
-    precision: str = "f64"
-    """Floating-point precision of the simulation, "f64" or "f32" (Taichi's default_fp: one per process)."""
     threads: int | None = None
-    """CPU threads Taichi may run loops on (None: every CPU this process may run on). Like ``arch`` and
-    ``precision`` it is fixed by the first simulator of a process."""
+    """CPU threads Taichi may run loops on (None: every CPU this process may run on). Like ``arch`` it is
+    fixed by the first simulator of a process."""
 
     def __post_init__(self):
-        if self.precision not in PRECISIONS:
-            raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.dx <= 0 or self.width <= 4 * self.dx or self.height <= 4 * self.dx:
             raise ValueError(f"simulator box {self.width}×{self.height} m is too small for cell {self.dx} m")
         if self.threads is not None and self.threads < 1:
