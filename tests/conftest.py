@@ -1,5 +1,6 @@
 """Shared fixtures: the tiny end-to-end workflow run, used by the workflow and the analysis tests."""
 
+import fcntl
 import os
 import subprocess
 import sys
@@ -26,6 +27,11 @@ def shared(relative: str) -> Path:
     return path
 
 
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto``: one worker per core, at most four (each holds a simulator of up to a few GB)."""
+    return max(1, min(4, os.cpu_count() or 1))
+
+
 def snakemake(workdir, *args, config=TINY):
     """Run Snakemake on the project's Snakefile in ``workdir`` with ``config``."""
     return subprocess.run([*SNAKEMAKE, "--directory", str(workdir), "--configfile", str(config), *args],
@@ -35,10 +41,26 @@ def snakemake(workdir, *args, config=TINY):
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory):
     """`tables` and `figures` (the analyses included) on the tiny twin, every job submitted through the
-    generic cluster executor, so that nothing can rely on shared process state. With the environment
+    generic cluster executor, so that nothing can rely on shared process state. Made once per test session:
+    pytest-xdist's workers share it (the first to need it makes it, under a lock). With the environment
     variable DPSI_TINY_RUN set to a folder, the run completes that folder instead of a new one (for working
     on one analysis without rerunning the rest)."""
-    workdir = Path(os.environ["DPSI_TINY_RUN"]) if "DPSI_TINY_RUN" in os.environ else tmp_path_factory.mktemp("workflow")
+    if "DPSI_TINY_RUN" in os.environ:
+        return _complete_tiny_run(Path(os.environ["DPSI_TINY_RUN"]))
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        return _complete_tiny_run(tmp_path_factory.mktemp("workflow"))
+    session = tmp_path_factory.getbasetemp().parent  # this session's folder, shared by its workers
+    with open(session / "tiny-workflow.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        workdir, done = session / "tiny-workflow", session / "tiny-workflow.done"
+        if not done.exists():
+            workdir.mkdir(exist_ok=True)
+            _complete_tiny_run(workdir)
+            done.touch()
+    return workdir
+
+
+def _complete_tiny_run(workdir: Path) -> Path:
     run = snakemake(workdir, "--executor", "cluster-generic", "--cluster-generic-submit-cmd", "bash",
                     "--jobs", "1", "--latency-wait", "5", "--seconds-between-status-checks", "1", "tables", "figures")
     assert run.returncode == 0, (run.stdout + run.stderr)[-4000:]
