@@ -1,6 +1,8 @@
 """The main sweep on the published real clay (config/real.yaml): planned from ../shared/real-clay, and a
 one-iteration smoke of it that goes from the published meshes to the tables."""
 
+import re
+
 import pandas as pd
 import yaml
 
@@ -29,6 +31,24 @@ def test_the_real_config_plans_every_pair_and_its_datasets(tmp_path):
     # five pairs; at level 1 three one-pair datasets and the mix, at level 2 two and the mix
     assert (jobs["import_release"], jobs["prepare"], jobs["identify"], jobs["unseen"]) == ("1", "5", "7", "7")
     assert jobs["landscape"] == "3"  # (E, σ_y) around the hand-picked values on each level-1 pair
+
+
+def test_runs_and_baselines_use_the_registered_motions(tmp_path):
+    """With motion_offsets on (as config/real.yaml has it), the hand-picked baseline simulates the same
+    registered path as the identification runs and the unseen-pair checks, not the planned one."""
+    config = yaml.safe_load(REAL.read_text())
+    assert config["identification"]["motion_offsets"] is True
+    config["release"]["source"] = str(shared("real-clay"))
+    (tmp_path / "real.yaml").write_text(yaml.safe_dump(config))
+    run = snakemake(tmp_path, "-n", "tables", config=tmp_path / "real.yaml")
+    assert run.returncode == 0, (run.stdout + run.stderr)[-3000:]
+    inputs = {}
+    for block in re.split(r"\n(?=(?:local)?rule \w+:)", run.stdout):
+        rule = re.match(r"(?:local)?rule (\w+):", block)
+        if rule and rule.group(1) in ("baseline", "identify", "unseen"):
+            inputs.setdefault(rule.group(1), []).extend(re.findall(r"results/real-clay/(\w+)/[^,\s]+\.npz", block))
+    assert set(inputs) == {"baseline", "identify", "unseen"}
+    assert {folder for folders in inputs.values() for folder in folders} == {"registered"}
 
 
 def test_a_one_iteration_sweep_recommends_one_row_per_level(tmp_path):

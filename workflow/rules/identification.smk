@@ -85,7 +85,7 @@ if RUN_ANALYSES:
 
 rule baseline:
     input:
-        datapoint=f"{RESULTS}/prepared/{{id}}.npz",
+        datapoint=lambda w: prepared([w.id])[0],
         code=code("baseline"),
     output:
         f"{RESULTS}/baselines/L{{level}}/{{id}}.json",
