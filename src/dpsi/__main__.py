@@ -27,6 +27,7 @@ from dpsi.pointclouds import read_mesh
 from dpsi.prepare import after_targets, assemble, density_holding, fill_particles, reconstruct_state
 from dpsi.rawdata import StateSource
 from dpsi.simulation import SimulationError, Simulator, SimulatorConfig
+from dpsi.uncertainty import describe
 
 DENSITY = 4e7
 """Default particle density (particles/m³), the lowest of SPEC §3.3."""
@@ -171,6 +172,12 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
                        help=_param_help("an initial value overriding --initial"))
     ident.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    ident.add_argument("--uncertainty", action=argparse.BooleanOptionalAction, default=True,
+                       help="measure at the best iteration what the data determine: an interval for each parameter, "
+                            "E/rho, yield_stress/E and the stiffest direction (two gradient passes per identified "
+                            "parameter; default on)")
+    ident.add_argument("--json", action="store_true", help="print the run's summary (as saved in summary.json, "
+                       "its intervals under 'uncertainty') as one JSON object")
     return parser
 
 
@@ -214,13 +221,25 @@ def _identify(parser, args) -> list[str]:
     validation_set = ([_shapes_datapoint(*quad, args.density, args.table_z, config) for quad in args.validate]
                       or training)
     summary = identify(args.out, args.level, args.loss, training, validation_set, args.seed, args.iterations,
-                       initial, simulator=Simulator(config))
+                       initial, simulator=Simulator(config), uncertainty=args.uncertainty)
+    if args.json:
+        return [json.dumps(summary)]
     best = summary["best"]
     head = ("no iteration has a finite validation height-map distance; final parameters:" if best is None else
             f"best iteration {best['iteration']} (validation height map {best['validation']['heightmap_mm']:.1f} mm):")
     values = (best or summary["final"])["parameters"]
     return [head, *(f"{name}: {value:g} {UNITS[name]}" for name, value in values.items()),
-            f"saved in {Path(args.out) / 'summary.json'}"]
+            *_uncertainty_lines(summary.get("uncertainty")), f"saved in {Path(args.out) / 'summary.json'}"]
+
+
+def _uncertainty_lines(block: dict | None) -> list[str]:
+    """What the data determine, one line per quantity (:func:`dpsi.uncertainty.describe`)."""
+    if block is None:
+        return []
+    if "error" in block:
+        return [f"what the data determine could not be measured: {block['error']}"]
+    return [f"what the data determine (loss {block['loss_mm']:.1f} mm, tolerance {block['tolerance_mm']:.2g} mm "
+            "from its bootstrap spread):", *(f"  {describe(q)}" for q in block["quantities"])]
 
 
 def main(argv: list[str] | None = None) -> int:

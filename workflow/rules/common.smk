@@ -215,6 +215,10 @@ except ValueError as err:
 OOD = 2 in IDENT["levels"]
 """Whether the out-of-distribution evaluation runs (it uses the level-2 parameters)."""
 TABLES = ["motions", "parameters", "best_params", "ood_heightmap", "recovery_error"]
+UNCERTAINTY = IDENT.get("uncertainty", False)
+"""Whether the main sweep's runs measure what their data determine (dpsi.uncertainty): uncertainty.csv and figure."""
+if UNCERTAINTY:
+    TABLES.append("uncertainty")
 OOD_SOURCES = [f"{RESULTS}/ood/hand-picked.json"] + expand(
     f"{RESULTS}/ood/{{loss}}/{{dataset}}.json",
     loss=IDENT["losses"],

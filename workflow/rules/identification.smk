@@ -35,6 +35,7 @@ rule identify:
         initial=IDENT.get("initial", "random"),
         known=IDENT.get("known", {}),
         select="validation",
+        uncertainty=IDENT.get("uncertainty", False),
         simulator=simulator_params(),
     script:
         "../scripts/identify.py"
@@ -69,6 +70,7 @@ if RUN_ANALYSES:
             initial=lambda w: w.start,
             known={},
             select="validation",
+            uncertainty=False,
             simulator=simulator_params(),
 
 

@@ -5,7 +5,10 @@ File names and CSV columns are an interface that other tools read:
 - ``motions.csv``: motion, segments, duration_s, real_waypoints, sim_steps
 - ``parameters.csv``: parameter, unit, min, max, step_level1, step_level2, hand_picked
 - ``best_params.csv``: level, loss, dataset, E, nu, rho, yield_stress, mu_table, mu_effector,
-  val_heightmap_mm (plus rows with dataset = "average" per loss, and loss = "hand-picked")
+  val_heightmap_mm (plus rows with dataset = "average" per loss, and loss = "hand-picked"), then the interval
+  <parameter>_low, <parameter>_high of each parameter the run measured it for (:mod:`dpsi.uncertainty`)
+- ``uncertainty.csv``: rung, level, loss, dataset, seed, quantity, estimate, low, high, determined, truth (rung
+  and truth empty where they do not apply)
 - ``ood_heightmap.csv``: motion, config, loss, dataset, heightmap_mm (plus loss = "hand-picked" rows
   and "average" rows)
 - ``recovery_error.csv``: level, loss, dataset, seed, parameter (and E/rho, yield_stress/E), truth, estimate, rel_error
@@ -28,6 +31,7 @@ from ..motions import MOTIONS, plan, resample
 from ..losses import VALIDATION_METRICS
 from ..parameters import HAND_PICKED, IDENTIFIED, LOWER, NAMES, STEP_SIZE, UNITS, UPPER, scale_free
 from ..files import atomic_output
+from ..uncertainty import true_value
 
 HAND_PICKED_LABEL = "hand-picked"
 AVERAGE_LABEL = "average"
@@ -61,22 +65,52 @@ def parameters_table() -> pd.DataFrame:
 def best_params_table(summaries: list[dict], hand_picked: dict[int, float]) -> pd.DataFrame:
     """The paper's main table: for each (level, loss, dataset) the parameters of the iteration with the
     lowest validation height-map distance across seeds; per (level, loss) the average over datasets;
-    per level the hand-picked parameters' validation distance (``hand_picked``: level → mm).
+    per level the hand-picked parameters' validation distance (``hand_picked``: level → mm); and the intervals of
+    the parameters whose run measured them (:data:`INTERVAL_COLUMNS`, only those some run has).
 
     ``summaries``: run summaries (identification ``summary.json``) with keys level, loss, dataset."""
     rows = []
     for (level, loss, dataset), runs in _group(summaries, ("level", "loss", "dataset")):
-        best = (_best_run(runs) or {}).get("best")
+        run = _best_run(runs) or {}
+        best = run.get("best")
         values = best["parameters"] if best else {n: math.nan for n in NAMES}
         rows.append(dict(level=level, loss=loss, dataset=dataset, **values,
-                         val_heightmap_mm=best["validation"]["heightmap_mm"] if best else math.nan))
-    table = pd.DataFrame(rows, columns=["level", "loss", "dataset", *NAMES, "val_heightmap_mm"])
+                         val_heightmap_mm=best["validation"]["heightmap_mm"] if best else math.nan,
+                         **_parameter_intervals(run)))
+    table = pd.DataFrame(rows, columns=["level", "loss", "dataset", *NAMES, "val_heightmap_mm", *INTERVAL_COLUMNS])
     averages = (table.groupby(["level", "loss"], sort=False)[[*NAMES, "val_heightmap_mm"]].mean().reset_index()
                 .assign(dataset=AVERAGE_LABEL))
     baseline = pd.DataFrame([dict(level=level, loss=HAND_PICKED_LABEL, dataset="", **HAND_PICKED.as_dict(),
                                   val_heightmap_mm=mm) for level, mm in sorted(hand_picked.items())])
+    measured = [c for c in table.columns if c not in INTERVAL_COLUMNS or table[c].notna().any()]
     return (pd.concat([table, averages, baseline], ignore_index=True)
-            .sort_values(["level"], kind="stable")[table.columns].reset_index(drop=True))
+            .sort_values(["level"], kind="stable")[measured].reset_index(drop=True))
+
+
+INTERVAL_COLUMNS = tuple(f"{n}_{end}" for n in NAMES for end in ("low", "high"))
+"""best_params.csv's interval columns (SI units; empty where the run did not measure one)."""
+
+
+def _parameter_intervals(summary: dict) -> dict[str, float]:
+    """The interval of each parameter in ``summary``'s uncertainty block, as :data:`INTERVAL_COLUMNS`."""
+    measured = {q["quantity"]: q for q in (summary.get("uncertainty") or {}).get("quantities", [])}
+    return {f"{n}_{end}": measured[n][end] if n in measured else math.nan for n in NAMES for end in ("low", "high")}
+
+
+UNCERTAINTY_COLUMNS = ("rung", "level", "loss", "dataset", "seed", "quantity", "estimate", "low", "high", "determined",
+                       "truth")
+
+
+def uncertainty_table(summaries: list[dict]) -> pd.DataFrame:
+    """What each run's data determine (:mod:`dpsi.uncertainty`): one row per run and quantity of its uncertainty
+    block, with the quantity's value at the run's truth where the summary has one. ``rung`` is empty for runs
+    that are not on the identifiability ladder, ``truth`` for runs with no known truth."""
+    rows = [dict(rung=s.get("rung", ""), level=s["level"], loss=s["loss"], dataset=s["dataset"], seed=s["seed"],
+                 quantity=q["quantity"], estimate=q["estimate"], low=q["low"], high=q["high"],
+                 determined=q["determined"],
+                 truth=true_value(q["exponents"], s["truth"]) if s.get("truth") else math.nan)
+            for s in summaries for q in (s.get("uncertainty") or {}).get("quantities", [])]
+    return pd.DataFrame(rows, columns=list(UNCERTAINTY_COLUMNS))
 
 
 def ood_table(records: list[dict]) -> pd.DataFrame:
