@@ -8,8 +8,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from dpsi.identification import uncertainty_at
+from dpsi.simulation import Simulator
 from dpsi.uncertainty import (DIRECTION_LABEL, Evaluation, UncertaintyError, assess, coverage, curvature,
                               difference_basis, model, resample, true_value)
+
+from test_identification import CONFIG, TRUTH, synthetic
 
 NAMES = ["E", "nu", "yield_stress"]
 X0 = np.log([5e4, 0.3, 2500.0])
@@ -122,3 +126,24 @@ def test_coverage_counts_the_truths_inside_the_determined_intervals():
 
 def test_a_quantity_s_truth_is_the_product_of_powers():
     assert true_value({"yield_stress": 1.0, "E": -1.0}, {"E": 5e4, "yield_stress": 2.5e3}) == pytest.approx(0.05)
+
+
+def test_on_a_tiny_scene_the_common_scale_of_e_rho_and_yield_stress_is_flat_and_the_ratios_are_determined():
+    """Two pokes of a 245-particle block with targets simulated at the truth; the estimate a few per cent off it."""
+    simulator = Simulator(CONFIG)
+    training = [synthetic(simulator, "round", 0.008), synthetic(simulator, "rectangle", 0.008)]
+    estimate = TRUTH.replace(E=1.06 * TRUTH.E, nu=0.95 * TRUTH.nu, rho=1.03 * TRUTH.rho,
+                             yield_stress=1.04 * TRUTH.yield_stress)
+    names = ["E", "nu", "rho", "yield_stress"]
+    block = uncertainty_at(simulator, training, estimate, "prt_emd", names)
+    assert block["evaluations"] == 9 and block["tolerance_mm"] > 0
+    hessian, scale = np.array(block["hessian_mm"]), np.array([1.0, 0.0, 1.0, 1.0]) / math.sqrt(3)
+    largest = np.abs(np.linalg.eigvalsh(hessian)).max()
+    assert abs(scale @ hessian @ scale) < 1e-9 * largest and np.abs(hessian @ scale).max() < 1e-9 * largest
+    flat = [d for d in block["directions"] if d["flat"]]
+    assert [d["exponents"] for d in flat] == [{"E": 1.0, "rho": 1.0, "yield_stress": 1.0}]
+    q = by_quantity(block)
+    assert not any(q[n]["determined"] for n in ("E", "rho", "yield_stress"))
+    for ratio in ("E/rho", "yield_stress/E"):
+        assert q[ratio]["determined"] and q[ratio]["factor"] < 2.5, q[ratio]
+        assert q[ratio]["low"] < true_value(q[ratio]["exponents"], TRUTH.as_dict()) < q[ratio]["high"]
