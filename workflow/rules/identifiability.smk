@@ -150,7 +150,9 @@ if "identifiability" in ANALYSES:
                     "{ladder}_uncertainty", "../report/identifiability_uncertainty.rst"
                 )
                 + table_files("{ladder}_coverage", "../report/coverage.rst")
-                + figure_files("{ladder}_uncertainty", "../report/uncertainty_figure.rst")
+                + figure_files(
+                    "{ladder}_uncertainty", "../report/uncertainty_figure.rst"
+                )
                 if LADDER_UNCERTAINTY
                 else []
             ),
