@@ -157,4 +157,4 @@ def test_the_interval_figure_draws_each_quantity_s_bar_estimate_and_truth(tmp_pa
     assert [list(c.get_xdata()) for c in crosses] == [[5e4]] * 2
     monkeypatch.undo()
     figures.plot_intervals(pd.DataFrame(rows), tmp_path / "u.png", tmp_path / "u.pdf", "intervals")
-    assert_figure(tmp_path, "u", min_pixels=300)
+    assert_figure(tmp_path, "u", min_pixels=250)
