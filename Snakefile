@@ -25,6 +25,11 @@ if TWIN:
     include: "workflow/rules/twin.smk"
 
 
+if RELEASE:
+
+    include: "workflow/rules/release.smk"
+
+
 include: "workflow/rules/reconstruction.smk"
 include: "workflow/rules/identification.smk"
 include: "workflow/rules/evaluation.smk"

@@ -103,3 +103,21 @@ def test_dents_converge_between_the_chosen_dx_and_the_next_finer():
     assert (dents > 3).all().all(), dents  # real dents (a height-map cell deep), not two flat maps agreeing
     change = (dents[CHOSEN_DX_MM] - dents[finer]).abs()
     assert (change < DENT_TOLERANCE_MM).all(), dents
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--motions", "poking-9"], "argument --motions: invalid choice: 'poking-9'"),
+    (["--dx", "6", "0"], "argument --dx: must be a positive number, got '0'"),
+    (["--dx", "6"], "argument --dx: needs at least two different grid cells, got [6.0]"),
+    (["--seed", "-1"], "argument --seed: must be an integer ≥ 0, got '-1'"),
+    (["--simulator", "{cfl: 0.5}"], "argument --simulator: must be a JSON object, got '{cfl: 0.5}'"),
+    (["--simulator", '{"dx": 0.004}'], "argument --simulator: unknown or fixed setting(s) ['dx']"),
+    (["--simulator", '{"cfl": 2}'], "argument --simulator: cfl must lie in (0, 1], got 2"),
+    (["--out", "."], "argument --out: . is a folder; give the CSV file to write"),
+])
+def test_bad_arguments_are_named_without_a_traceback(capsys, monkeypatch, args, message):
+    monkeypatch.setattr(convergence, "resolution_study", lambda *a, **k: pytest.fail("the study started"))
+    with pytest.raises(SystemExit) as exit_:
+        convergence.main(args)
+    error = capsys.readouterr().err
+    assert exit_.value.code == 2 and message in error and "Traceback" not in error

@@ -5,6 +5,7 @@ import pandas as pd
 import pytest
 import yaml
 
+from dpsi import bench
 from dpsi.bench import cached_kernels, scaling_lines, target_lines
 from dpsi.reporting.cost import COLUMNS, cost_table, iterations_total
 
@@ -105,3 +106,17 @@ def test_scaling_reports_the_best_speedup_against_the_16_core_target():
     assert scaling_lines(records(16, 3.0))[-1].endswith("on 16 cores NOT met")
     assert scaling_lines(records(2, 1.4))[-1].endswith("on 16 cores not measurable here")
     assert len(scaling_lines(records(2, 1.4))) == 3
+
+
+@pytest.mark.parametrize("args, message", [
+    (["simulator", "--density=-4e7"], "argument --density: must be a positive number, got '-4e7'"),
+    (["scaling", "--density", "lots"], "argument --density: must be a positive number, got 'lots'"),
+    (["losses", "--points", "0"], "argument --points: must be an integer ≥ 1, got '0'"),
+    (["_one", "poking-1", "4e7", "--simulator", '{"cfl": 0}'], "argument --simulator: cfl must lie in (0, 1], got 0"),
+])
+def test_bad_benchmark_arguments_are_named_without_a_traceback(capsys, monkeypatch, args, message):
+    monkeypatch.setattr(bench, "_run", lambda args: pytest.fail("the benchmark started"))
+    with pytest.raises(SystemExit) as exit_:
+        bench.main(args)
+    error = capsys.readouterr().err
+    assert exit_.value.code == 2 and message in error and "Traceback" not in error

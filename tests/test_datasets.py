@@ -3,7 +3,7 @@
 import pandas as pd
 import pytest
 
-from dpsi.datasets import DATASETS, EFFECTORS, LONG_MOTIONS, ood, planning_start, select, validation
+from dpsi.datasets import DATASETS, EFFECTORS, LONG_MOTIONS, expand_names, ood, planning_start, select, unseen, validation
 from dpsi.motions import MOTIONS
 from dpsi.twin_plan import default_plan, plan_rows
 
@@ -77,7 +77,7 @@ def test_missing_datapoints_are_named(table):
         select(short, 1, "12-mix")
     with pytest.raises(ValueError, match=r"1 of poking-2 with cylinder \(found 0\)"):
         select(short, 1, "6-mix")
-    with pytest.raises(ValueError, match="no validation datapoints of level 1 for material 'slime'"):
+    with pytest.raises(ValueError, match="no validation or train datapoints of level 1 for material 'slime'"):
         validation(table, 1, material="slime")
     with pytest.raises(ValueError, match="no ood datapoints"):
         ood(table[table.role != "ood"])
@@ -94,3 +94,30 @@ def test_planning_starts_from_the_first_ood_flattening_of_clay():
     assert planning_start(table) == "d"
     with pytest.raises(ValueError, match="flattening"):
         planning_start(table[table.id != "d"])
+
+
+@pytest.fixture
+def real():
+    """A table like the published real data's: pairs of any motions, all train datapoints."""
+    return pd.DataFrame([dict(id=i, motion=m, effector=e, level=lv, role="train", material="clay") for i, m, e, lv in [
+        ("a", "poking-1", "round", 1), ("b", "poking-1", "cylinder", 1), ("c", "poking-2", "rectangle", 1),
+        ("d", "poking-shifting-1", "cylinder", 2), ("e", "poking-shifting-2", "round", 2)]])
+
+
+def test_pairs_stand_for_one_dataset_per_train_datapoint_and_mix_for_all(real):
+    assert expand_names(real, 1, ["pairs", "mix"]) == ["pair-a", "pair-b", "pair-c", "mix"]
+    assert expand_names(real, 2, ["1-round", "pairs"]) == ["1-round", "pair-d", "pair-e"]
+    assert select(real, 1, "pair-b") == ["b"] and select(real, 2, "mix") == ["d", "e"]
+    with pytest.raises(ValueError, match="no train datapoint 'd'"):
+        select(real, 1, "pair-d")
+
+
+def test_without_validation_datapoints_a_dataset_validates_on_the_pairs_it_leaves_out(real, table):
+    assert validation(real, 1, training=["b"]) == ["a", "c"]
+    assert validation(real, 1, training=["a", "b", "c"]) == ["a", "b", "c"]  # nothing left out: itself
+    assert validation(table, 1, training=select(table, 1, "1-round")) == validation(table, 1)  # the twin's own
+
+
+def test_unseen_datapoints_span_both_levels(real):
+    assert unseen(real, ["b"]) == ["a", "c", "d", "e"]
+    assert unseen(real, ["d", "e"]) == ["a", "b", "c"]

@@ -5,6 +5,8 @@ import dataclasses
 import io
 import json
 import math
+import os
+import socket
 from types import SimpleNamespace
 
 import numpy as np
@@ -15,8 +17,10 @@ from dpsi.datapoint import Datapoint
 from dpsi.heightmap import height_map
 from dpsi import identification
 from dpsi.effectors import by_name
-from dpsi.identification import COLUMNS, LOG_FILE, STATE_FILE, IdentificationError, identify, inputs_key, scene
+from dpsi.identification import (COLUMNS, LOG_FILE, STATE_FILE, SUMMARY_FILE, IdentificationError, identify,
+                                  inputs_key, scene)
 from dpsi.motions import Trajectory
+from dpsi.output_folder import LOCK_FILE, FolderError
 from dpsi.parameters import HAND_PICKED, LEVEL1_FIXED, Parameters
 from dpsi.reconstruction.filling import pcd_target
 from dpsi.simulation import SimulationError, Simulator, SimulatorConfig
@@ -227,13 +231,92 @@ def _failing(*args, **kwargs):
     raise SimulationError("unstable")
 
 
-def test_all_skipped_stops_early(problem, tmp_path):
+def test_a_run_whose_training_simulations_all_fail_fails_with_their_cause(problem, tmp_path):
     broken = SimpleNamespace(config=CONFIG, forward=_failing, backward=_failing)
-    summary = identify(tmp_path, 1, "prt_cd", *problem, iterations=5, simulator=broken, progress=io.StringIO())
-    log = pd.read_csv(tmp_path / LOG_FILE)
-    assert list(log.skipped) == [2] and list(log.val_skipped) == [1] and math.isnan(log.train_loss_mm[0])
-    assert summary["completed_iterations"] == 0 and "every training datapoint was skipped" in summary["stopped_early"]
-    assert summary["best"] is None
+    with pytest.raises(IdentificationError, match=r"nothing to learn from at iteration 0: every training datapoint "
+                                                  r"was skipped.*round: simulation failed: unstable; rectangle: "
+                                                  r"simulation failed: unstable"):
+        identify(tmp_path, 1, "prt_cd", *problem, iterations=5, simulator=broken, progress=io.StringIO())
+    assert not (tmp_path / LOG_FILE).exists() and not (tmp_path / SUMMARY_FILE).exists()
+
+
+def test_a_run_that_can_no_longer_learn_fails_and_keeps_its_rows(simulator, problem, tmp_path):
+    """Unstable from iteration 2 on: rows 0 and 1 stay in the state, no summary claims a result."""
+    calls = []
+
+    def forward(*args, **kwargs):
+        calls.append(1)
+        if len(calls) > 2 * len(problem[0]):
+            raise SimulationError("step 3 of 15 produced NaN or inf")
+        return simulator.forward(*args, **kwargs)
+
+    flaky = SimpleNamespace(config=CONFIG, forward=forward, backward=simulator.backward)
+    with pytest.raises(IdentificationError, match="at iteration 2: .*round: simulation failed: step 3 of 15"):
+        identify(tmp_path, 1, "prt_cd", problem[0], problem[0], iterations=3, initial=HAND_PICKED,
+                 simulator=flaky, progress=io.StringIO())
+    assert [row["iteration"] for row in json.loads((tmp_path / STATE_FILE).read_text())["log"]] == [0, 1]
+    assert not (tmp_path / SUMMARY_FILE).exists()
+
+
+def test_gradients_screened_out_everywhere_are_a_cause_too(problem, tmp_path):
+    flat = SimpleNamespace(config=CONFIG, forward=lambda scene, params: scene.particles,
+                           backward=lambda d: dict.fromkeys(HAND_PICKED.as_dict(), 0.0))
+    with pytest.raises(IdentificationError, match=r"round: its gradient is zero for \['E', 'nu'"):
+        identify(tmp_path, 1, "prt_cd", *problem, iterations=1, simulator=flat, progress=io.StringIO())
+
+
+def test_files_in_the_output_folder_that_the_run_did_not_write_are_kept(problem, tmp_path):
+    (tmp_path / LOG_FILE).write_text("a log of my own\n")
+    (tmp_path / "notes.txt").write_text("mine\n")
+    untouchable = SimpleNamespace(config=CONFIG, forward=_failing, backward=_failing)
+    with pytest.raises(FolderError, match=f"holds {LOG_FILE}, which dpsi identify did not write"):
+        identify(tmp_path, 1, "prt_cd", *problem, simulator=untouchable, progress=io.StringIO())
+    assert (tmp_path / LOG_FILE).read_text() == "a log of my own\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [LOG_FILE, "notes.txt"]
+
+
+def test_a_second_run_on_the_same_folder_is_refused_before_simulating(problem, tmp_path):
+    """The first run holds the folder while it simulates; the second, started meanwhile, is refused."""
+    second = {}
+
+    def forward_starting_a_second_run(*args, **kwargs):
+        untouchable = SimpleNamespace(config=CONFIG, forward=_failing, backward=_failing)
+        with pytest.raises(FolderError) as refused:
+            identify(tmp_path, 1, "prt_cd", *problem, simulator=untouchable, progress=io.StringIO())
+        second["message"] = str(refused.value)
+        raise SimulationError("stop the first run too")
+
+    first = SimpleNamespace(config=CONFIG, forward=forward_starting_a_second_run, backward=_failing)
+    with pytest.raises(IdentificationError, match="nothing to learn"):
+        identify(tmp_path, 1, "prt_cd", *problem, simulator=first, progress=io.StringIO())
+    assert second["message"].startswith(f"output folder {tmp_path} is in use by another run (dpsi identify, "
+                                        f"process {os.getpid()} on host {socket.gethostname()}, started ")
+    assert not (tmp_path / LOCK_FILE).exists()
+
+
+def _edit_state(folder, edit):
+    state = json.loads((folder / STATE_FILE).read_text())
+    edit(state)
+    (folder / STATE_FILE).write_text(json.dumps(state))
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda s: s["adam"]["values"].update(E=s["adam"]["values"]["E"] + 1.0), "its optimiser state disagrees with its log"),
+    (lambda s: s["adam"].update(iteration=1), "its optimiser state disagrees with its log"),
+    (lambda s: s["log"][1].update(E=s["log"][1]["E"] * 2), "the parameters of its log row 1 are not those"),
+    (lambda s: s["log"][0].update(grad_E=s["log"][0]["grad_E"] * 2), "the parameters of its log row 1 are not those"),
+    (lambda s: s["log"].pop(1), "its log row 1 is not row 1"),
+])
+def test_a_state_whose_log_and_optimiser_disagree_is_refused(simulator, problem, tmp_path, edit, message):
+    run = dict(level=1, loss="prt_cd", training=problem[0], validation_set=problem[0], iterations=2,
+               initial=HAND_PICKED, simulator=simulator, progress=io.StringIO())
+    identify(tmp_path, **run)
+    _edit_state(tmp_path, edit)
+    with pytest.raises(IdentificationError, match=f"{STATE_FILE} cannot be resumed: {message}.*Delete it to restart"):
+        identify(tmp_path, **run)
+    notes = io.StringIO()  # the workflow's mode: discarded, with a note
+    identify(tmp_path, **{**run, "progress": notes}, restart_if_different=True)
+    assert "starting afresh" in notes.getvalue() and "cannot be resumed" in notes.getvalue()
 
 
 OUT_OF_RANGE = Parameters(E=1e6, nu=0.4, rho=1330.0, yield_stress=1e3, mu_table=0.7, mu_effector=0.7)
@@ -253,6 +336,7 @@ def test_the_best_iteration_is_chosen_by_the_validation_map_or_by_the_training_l
     assert (by_training["best"]["iteration"], by_training["selected_by"]) == (2, "training")
     assert by_training["best"]["parameters"]["E"] == 3e4
     assert by_training["relative_error"]["E"] == pytest.approx(0.4)
+    assert identification.summarise(rows[:1], {}, 0, TRUTH)["best"] is None  # never the initial values
 
 
 @pytest.mark.parametrize("change, message", [
@@ -278,6 +362,20 @@ def test_bad_arguments_fail_before_any_simulation(problem, tmp_path, change, mes
                    validation_set=problem[1], simulator=untouchable), **change}
     with pytest.raises(IdentificationError, match=message.replace("(", r"\(")):
         identify(**args)
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"start": np.array([0.0, 0.0, 0.06])}, "leaves the simulated box at step 0"),
+    ({"particles": block() * [3.0, 1.0, 1.0]}, "particles lie outside the simulated box"),
+])
+def test_datapoint_outside_the_simulated_box_is_named_before_any_simulation(problem, tmp_path, change, message):
+    """A lump too wide for the box, or a tip path leaving it: every simulation failed, and the run "stopped
+    early" with exit 0 and no cause."""
+    outside = dataclasses.replace(problem[0][1], **change)
+    untouchable = SimpleNamespace(config=CONFIG, forward=_failing, backward=_failing)
+    with pytest.raises(IdentificationError, match=f"training datapoint 'rectangle': .*{message}"):
+        identify(tmp_path / "run", 1, "prt_cd", [problem[0][0], outside], problem[1], simulator=untouchable)
     assert not (tmp_path / "run").exists()
 
 

@@ -136,7 +136,7 @@ def test_file_round_trip_and_heat_maps(tmp_path):
         plot_landscapes([("1-round", landscape), ("6-mix", other)], tmp_path / "g.png", tmp_path / "g.pdf")
     with pytest.raises(ValueError, match="expected"):
         Landscape(pair, ("prt_cd",), x, y, values, HAND_PICKED)
-    with pytest.raises(ValueError, match="not a landscape file"):
+    with pytest.raises(ValueError, match="not a complete landscape file"):
         load_landscape(tmp_path / "f.png")
 
 

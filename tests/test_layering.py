@@ -16,7 +16,8 @@ def test_what_the_workflow_parses_with_loads_no_simulator_or_geometry_library():
     rule_imports = set()
     for rules in (ROOT / "workflow" / "rules").glob("*.smk"):
         text = rules.read_text()
-        rule_imports.update(re.findall(r"^from dpsi import (\w+)", text, re.MULTILINE))
+        for names in re.findall(r"^from dpsi import ([\w ,]+)", text, re.MULTILINE):
+            rule_imports.update(name.split(" as ")[0].strip() for name in names.split(","))
         rule_imports.update(re.findall(r"^from dpsi\.(\w+) import", text, re.MULTILINE))
     assert {"datasets", "twin_plan", "datapoints_table"} <= rule_imports
     modules = sorted(f"dpsi.{m}" for m in rule_imports | {"motions", "parameters", "datasets", "datapoint", "files"})

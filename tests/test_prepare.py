@@ -87,6 +87,15 @@ def test_a_datapoint_named_in_two_sets_is_read_once_and_shared(from_views, tmp_p
     np.testing.assert_array_equal(training[1].particles, from_views.particles)
 
 
+@pytest.mark.parametrize("damage", [lambda b: b[: len(b) // 2], lambda b: b[:100] + bytes([b[100] ^ 0xFF]) + b[101:]])
+def test_a_damaged_prepared_datapoint_names_the_file_and_the_stage_to_rerun(from_views, tmp_path, damage):
+    save_datapoint(tmp_path / "views.npz", from_views)
+    (tmp_path / "views.npz").write_bytes(damage((tmp_path / "views.npz").read_bytes()))
+    with pytest.raises(ValueError, match=rf"^{tmp_path / 'views.npz'} is not a complete prepared datapoint file "
+                                         r"\(.+\): it is damaged, cut short .*; delete it and rerun the stage that makes it \(prepare\)$"):
+        load_datapoint(tmp_path / "views.npz")
+
+
 def test_meshes_enter_at_filling_and_prt_target_fits(raw):
     dp = prepare_datapoint(raw, "meshes", DENSITY)
     before = read_mesh(raw.root / "meshes" / "before_mesh.obj")

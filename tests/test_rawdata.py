@@ -84,6 +84,14 @@ def _nan_vertex(path):
     return path
 
 
+def _face_out_of_range(path):
+    lines = path.read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("f "))
+    lines[first] = "f 1 2 100000"  # crashed PyMeshLab (exit 139)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 BAD = {
     "missing transform": (lambda r: (r / "dp1/before/view_1.transform.txt").unlink() or r / "dp1/before/view_1.ply",
                           "transform"),
@@ -95,6 +103,8 @@ BAD = {
                                                  "property float z\nend_header\n0 0 0\n1 0 0\n"), "declares 3 rows"),
     "truncated binary mesh": (lambda r: _truncate(r / "dp2/after_mesh.ply", keep=0.9), "truncated PLY file"),
     "NaN vertex in an OBJ mesh": (lambda r: _nan_vertex(r / "dp2/before_mesh.obj"), r"line \d+: vertex 'nan"),
+    "face index out of range": (lambda r: _face_out_of_range(r / "dp2/before_mesh.obj"),
+                                "face refers to vertex 100000"),
     "pickled npy": (lambda r: np.save(r / "dp1/after_fused.npy", np.array([{}], dtype=object), allow_pickle=True)
                     or r / "dp1/after_fused.npy", "not a numeric .npy array"),
     "malformed npy": (lambda r: _corrupt(r / "dp1/after_fused.npy", "not an array"), "not a numeric .npy array"),
@@ -124,6 +134,21 @@ BAD = {
     "missing datapoint folder": (lambda r: shutil.rmtree(r / "dp2") or r / "dp2", "not found"),
     "bad effector kind": (lambda r: _corrupt(r / "dataset.yaml", "effectors: {spoon: {kind: ladle}}\n"), "ladle"),
     "views without workspace": (lambda r: _corrupt(r / "dataset.yaml", "table_z: 0.0\n"), "workspace"),
+    "id too long for a file name": (lambda r: _edit_table(r, id="d" * 240), r"id 'd{39}… \(240 characters\) must be"),
+    "YAML syntax error": (lambda r: _corrupt(r / "dataset.yaml", "table_z: [0.0\n"), "not valid YAML"),
+    "python tag in YAML": (lambda r: _corrupt(r / "dataset.yaml", "table_z: !!python/object/apply:os.getpid []\n"),
+                           r"\(line 1\): tags such as .*python/object/apply:os.getpid.* are not allowed"),
+    "effectors of the wrong type": (lambda r: _corrupt(r / "dataset.yaml", "effectors: [round]\n"),
+                                    "effectors must be a mapping"),
+    "workspace corner of the wrong type": (
+        lambda r: _corrupt(r / "dataset.yaml", "workspace: {lo: 0, hi: [1, 1, 1]}\n"),
+        r"workspace.lo must be three numbers \[x, y, z\] in m, not 0"),
+    "absolute effector path": (
+        lambda r: _corrupt(r / "dataset.yaml", f"effectors: {{mine: {{obj: {r / 'dp2/before_mesh.obj'}}}}}\n"),
+        "effectors.mine.obj is the absolute path .*; paths in dataset.yaml must be relative"),
+    "effector path leaving the dataset": (
+        lambda r: _corrupt(r / "dataset.yaml", "effectors: {mine: {obj: ../tool.obj}}\n"),
+        "effectors.mine.obj '../tool.obj' leads outside the dataset folder"),
 }
 
 
@@ -134,6 +159,18 @@ def test_bad_input_names_the_file(root, case):
     with pytest.raises(RawDataError, match=problem) as err:
         load_raw_dataset(root)
     assert str(bad_path) in str(err.value)
+
+
+def test_spaces_around_csv_names_and_values_are_dropped(root):
+    """"id, motion, …" once gave "missing column(s) ['motion', …]"."""
+    table = root / "datapoints.csv"
+    table.write_text("\n".join(", ".join(line.split(",")) for line in table.read_text().splitlines()) + "\n")
+    trajectory = root / "trajectories" / "poking-1.csv"
+    lines = trajectory.read_text().splitlines()
+    trajectory.write_text("\n".join([" t , x , y , z , yaw", *lines[1:]]) + "\n")
+    ds = load_raw_dataset(root)
+    assert [(d.id, d.motion, d.effector, d.role) for d in ds.datapoints] == [
+        ("dp1", "poking-1", "round", "train"), ("dp2", "flattening", "cylinder", "ood")]
 
 
 def test_ood_motion_with_the_wrong_effector(root):

@@ -15,9 +15,9 @@ from conftest import shared
 from dpsi import effectors
 from dpsi.motions import Trajectory, trajectory
 from dpsi.parameters import HAND_PICKED, NAMES, STIFFEST, Parameters
-from dpsi.simulation import Scene, SimulationError, Simulator, SimulatorConfig
+from dpsi.simulation import Scene, SimulationError, Simulator, SimulatorConfig, memory, mpm
 from dpsi.simulation.constitutive import surely_elastic
-from dpsi.simulation.mpm import mapped_array
+from dpsi.simulation.mpm import field_bytes, mapped_array
 
 SPACING = 0.004  # m between particles: a coarse object keeps these tests fast
 CONFIG = SimulatorConfig(width=0.12, height=0.08, max_particles=1500, max_steps=120)
@@ -99,61 +99,43 @@ def test_scaling_stiffness_density_and_yield_stress_together_changes_nothing(sim
     assert abs(sum(terms)) < 1e-6 * sum(abs(t) for t in terms), terms
 
 
-F32_TOLERANCE = 0.1
-"""Largest relative error of a float32 gradient against the exact derivative (float64 central differences)
-in the scene of :func:`float32_scene`; measured: 0.9 % (E, ν) to 5.9 % (μ_effector)."""
+def test_the_memory_estimate_is_what_the_fields_take(sim):
+    from taichi.lang.field import Field
+    from taichi.lang.matrix import MatrixField
+
+    def nbytes(field):
+        components = field.n * field.m if isinstance(field, MatrixField) else 1
+        return np.prod(field.shape) * components * np.dtype(ti.lang.util.to_numpy_type(field.dtype)).itemsize
+
+    allocated = sum(nbytes(v) for v in vars(sim).values() if isinstance(v, Field))
+    assert sum(field_bytes(CONFIG).values()) == pytest.approx(allocated, rel=1e-4)
 
 
-def float32_scene():
-    """The rectangle pressing 0.3 mm a step into the top while dragging sideways, for 10 steps."""
-    particles = block(jitter=5e-4)
-    weights = np.random.default_rng(1).normal(size=particles.shape)
-    theta = params(yield_stress=1100.0, mu_table=0.5, mu_effector=0.5)
-    return scene(particles, path(10, dx=0.0005, dz=-0.0003), effectors.RECTANGLE, depth=0.002), weights, theta
+@pytest.mark.parametrize("change, message", [
+    ({"cfl": 1e-4}, r"1.54e\+03 GB for its fields: the particle state in 855561 substep slots × 5000 particles.*more "
+                    r"than the 24 GB "
+                    r"of memory available here; .*raise simulator.cfl \(now 0.0001; it sets the 855560 substeps"),
+    ({"max_particles": 10 ** 6}, r"45.5 GB .*124 substep slots × 1000000 particles.*lower simulator.max_particles "
+                                 r"\(now 1000000; --max-particles on the command line\)"),
+])
+def test_a_simulator_that_would_not_fit_in_memory_is_refused_before_it_allocates(monkeypatch, change, message):
+    monkeypatch.setattr(memory, "available_memory", lambda: 24e9)
+    monkeypatch.setattr(mpm, "ensure_taichi", lambda *args: pytest.fail("Taichi was asked for the fields"))
+    with pytest.raises(SimulationError, match=message):
+        Simulator(SimulatorConfig(**change))
 
 
-def print_float32_gradients():
-    """Run in a process of its own (Taichi's precision is one per process): print the float32 gradient of
-    the :func:`float32_scene` loss as JSON."""
-    import json
-
-    s, weights, theta = float32_scene()
-    sim = Simulator(replace(CONFIG, precision="f32"))
-    sim.forward(s, theta)
-    print(json.dumps(sim.backward(weights)))
+def test_a_scene_whose_checkpoints_would_not_fit_in_memory_is_refused(sim, monkeypatch):
+    particles = block()
+    monkeypatch.setattr(memory, "available_memory", lambda: 1e5)
+    with pytest.raises(SimulationError, match=rf"for the checkpoints of this scene \(31 steps × {len(particles)} "
+                                              r"particles\), more than the 0.0001 GB.*use fewer particles"):
+        sim.forward(far_scene(particles), HAND_PICKED)
 
 
-def test_float32_gradient_is_close_to_the_exact_derivative(sim):
-    """Float32 gradients against central differences of the float64 simulation (float32's own finite
-    differences are rounding noise at any step), within F32_TOLERANCE."""
-    import json
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    here = Path(__file__).resolve().parent
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(here), os.environ.get("PYTHONPATH")]))}
-    out = subprocess.run([sys.executable, "-c", "import test_simulation as t; t.print_float32_gradients()"],
-                         capture_output=True, text=True, env=env, check=True)
-    grads = json.loads(out.stdout.strip().splitlines()[-1])
-    s, weights, theta = float32_scene()
-
-    def loss(p):
-        return float((sim.forward(s, p) * weights).sum())
-
-    steps = {"E": 1e-3, "nu": 1e-8, "rho": 1e-5, "yield_stress": 1e-4, "mu_table": 1e-7, "mu_effector": 1e-7}
-    for name in NAMES:
-        v, h = getattr(theta, name), steps[name]
-        fd = (loss(theta.replace(**{name: v + h})) - loss(theta.replace(**{name: v - h}))) / (2 * h)
-        assert grads[name] == pytest.approx(fd, rel=F32_TOLERANCE), name
-
-
-def test_a_second_precision_in_one_process_is_refused(sim):
-    with pytest.raises(RuntimeError, match="f64 in this process; cannot switch to 'cpu' in f32"):
-        Simulator(replace(CONFIG, precision="f32"))
-    with pytest.raises(ValueError, match="precision must be one of"):
-        SimulatorConfig(precision="f16")
+def test_a_second_arch_in_one_process_is_refused(sim):
+    with pytest.raises(RuntimeError, match="Taichi already runs on 'cpu' in this process; cannot switch to 'cuda'"):
+        Simulator(replace(CONFIG, arch="cuda"))
 
 
 def test_cuda_without_a_gpu_is_refused_rather_than_run_on_the_cpu():
@@ -223,6 +205,19 @@ def test_backward_recomputing_each_step_matches_backward_from_kept_substeps(sim,
     recomputed = sim.backward(weights)
     for name in NAMES:
         assert recomputed[name] == pytest.approx(kept[name], rel=1e-9, abs=1e-12), name
+
+
+def test_substep_states_beyond_the_memory_available_are_recomputed(sim, monkeypatch):
+    """Within the budget but not in the memory there is: the forward pass keeps no substeps (and
+    does not fail); checkpoints that fit still do."""
+    particles = block(jitter=5e-4)
+    s = scene(particles, path(30, dx=0.0002), effectors.ROUND, depth=0.001)
+    checkpoints = 31 * len(particles) * mpm.STATE_WIDTH * 8
+    monkeypatch.setattr(sim, "_substep_buffer", np.empty(0))
+    monkeypatch.setattr(memory, "available_memory", lambda: 2 * checkpoints)
+    sim.forward(s, HAND_PICKED)
+    assert sim._substates is None and sim._substep_buffer.size == 0
+    assert np.isfinite(sim.backward(np.ones_like(particles))["E"])
 
 
 @pytest.mark.parametrize("transfers", ["gather", "atomic scatter"])

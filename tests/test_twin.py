@@ -14,8 +14,8 @@ from dpsi.prepare import fuse_state
 from dpsi.rawdata import load_raw_dataset
 from dpsi.reconstruction.filling import lattice_spacing
 from dpsi.simulation import SimulatorConfig
-from dpsi.twin import (GROUND_TRUTH_FILE, WORKSPACE, generate_datapoint, generate_twin, load_ground_truth, read_truth,
-                       write_twin_table)
+from dpsi.twin import (GROUND_TRUTH_FILE, WORKSPACE, MotionError, generate_datapoint, generate_twin, load_ground_truth,
+                       read_truth, write_twin_table)
 from dpsi.twin_plan import MATERIALS, Group, default_plan, plan_from_config, plan_rows
 
 TINY = dict(config=SimulatorConfig(dx=0.008, max_particles=2000, max_steps=100), density=8e6)
@@ -44,9 +44,9 @@ def test_twin_is_a_valid_raw_dataset(twin):
     assert dp.trajectory == twin / ID / "trajectory.csv"
     assert ds.table_z == 0.0 and np.allclose(ds.workspace, WORKSPACE)
     assert select(ds, 1, "1-round") == [ID]
-    materials, seed, config, density = read_truth(twin)
+    materials, seed, config, density, motion_error = read_truth(twin)
     assert materials == {"clay": MATERIALS["clay"]} and seed == 3
-    assert config == TINY["config"] and density == TINY["density"]
+    assert config == TINY["config"] and density == TINY["density"] and motion_error == MotionError()
     assert json.loads((twin / "truth.json").read_text())["materials"]["clay"]["E"] == MATERIALS["clay"].E
 
 
@@ -93,6 +93,21 @@ def test_generation_is_deterministic_from_the_seed(twin, tmp_path):
     t0, t1 = (load_ground_truth(p / GROUND_TRUTH_FILE) for p in (twin / ID, same))
     np.testing.assert_array_equal(t0.after_particles, t1.after_particles)
     assert not list(tmp_path.glob("*/.*.tmp"))  # no temporary folder left behind
+
+
+def test_a_motion_error_moves_the_simulated_path_and_not_the_recorded_one(twin, tmp_path):
+    """With a motion error the twin simulates its tool 3 mm off (at most) and turned a little, while its
+    trajectory.csv keeps the planned path."""
+    root = tmp_path / "raw" / "off"
+    write_twin_table(root, PLAN, seed=3, **TINY, motion_error=MotionError(translation=0.003, yaw=0.05))
+    generate_datapoint(root, ID)
+    exact, off = load_ground_truth(twin / ID / GROUND_TRUTH_FILE), load_ground_truth(root / ID / GROUND_TRUTH_FILE)
+    assert (root / ID / "trajectory.csv").read_bytes() == (twin / ID / "trajectory.csv").read_bytes()
+    assert exact.motion_offset == (0.0, 0.0, 0.0) and exact.motion_yaw == 0.0
+    moved = np.asarray(off.motion_offset)
+    assert 0 < np.abs(moved).max() <= 0.003 and 0 < abs(off.motion_yaw) <= 0.05
+    assert np.array_equal(off.before_particles, exact.before_particles)
+    assert not np.allclose(off.after_particles, exact.after_particles, atol=1e-3)
 
 
 def test_plans_and_their_errors(tmp_path):

@@ -27,6 +27,7 @@ def edited_config(tmp_path, edit):
     (lambda c: c["identification"].update(losses=["prt_chamfer"]), "prt_chamfer"),
     (lambda c: c["identification"].update(datasets=["3-mix"]), "3-mix"),
     (lambda c: c.update(colour="blue"), "colour"),
+    (lambda c: c.setdefault("simulator", {}).update(precision="f32"), "precision"),  # float32 was removed
     (lambda c: c["reconstruction"].update(density=-1), "density"),
     (lambda c: c["identification"].update(known={"density": 1200}), "density"),
     (lambda c: c["identification"].update(known={"rho": 5000}), "5000"),
@@ -142,6 +143,34 @@ def test_unknown_motion_in_the_table_is_named_at_start_up(tmp_path):
     assert "datapoints.csv: line 2: unknown motion 'poking-9'" in output and "lacks train datapoints" not in output
 
 
+def _known_friction(raw, config):
+    settings = yaml.safe_load(config.read_text())
+    settings["identification"]["known"] = {"mu_table": 1.0}
+    config.write_text(yaml.safe_dump(settings, sort_keys=False))
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda raw, _: (raw / "dataset.yaml").write_text("table_z: [0.0\n"), "raw/probe/dataset.yaml: not valid YAML"),
+    (lambda raw, _: (raw / "dataset.yaml").write_text("table_z: !!python/object/apply:os.getpid []\n"),
+     "raw/probe/dataset.yaml (line 1): tags such as"),
+    (lambda raw, _: (raw / "dataset.yaml").write_text("effectors: [round]\n"),
+     "raw/probe/dataset.yaml: effectors must be a mapping"),
+    (lambda raw, _: (raw / "dataset.yaml").write_text(f"effectors: {{mine: {{obj: {raw.parent / 'tool.obj'}}}}}\n"),
+     "raw/probe/dataset.yaml: effectors.mine.obj is the absolute path"),
+    (_known_friction, "config key identification.known: known parameter(s) ['mu_table'] are not identified at "
+                      "level 1"),
+])
+def test_bad_dataset_yaml_or_known_parameter_is_named_at_start_up(tmp_path, damage, message):
+    """Each once gave a traceback while Snakemake planned, a MissingInputException, or (the known friction)
+    a failure of the identify job after the whole reconstruction."""
+    project, config = _raw_project(tmp_path)
+    damage(project / "raw" / "probe", config)
+    run = snakemake(project, "-n", "tables", config=config)
+    output = run.stdout + run.stderr
+    assert run.returncode != 0 and message in output, output[-3000:]
+    assert "Traceback" not in output
+
+
 def test_failing_raw_data_job_writes_its_error_to_its_log(tmp_path):
     """The raw dataset lacks the planner trajectory of poking-2: the job validating each raw datapoint
     (check_raw, before the trajectory stage) fails, its log holding the message naming the file and the
@@ -187,13 +216,25 @@ def test_tiny_workflow_makes_every_table(tiny_run):
     best = pd.read_csv(tables / "best_params.csv")
     names = ["E", "nu", "rho", "yield_stress", "mu_table", "mu_effector"]
     intervals = [f"{n}_{end}" for n in names for end in ("low", "high")]
-    assert list(best.columns) == ["level", "loss", "dataset", *names, "val_heightmap_mm", *intervals]
+    assert list(best.columns) == ["level", "loss", "dataset", *names, "val_heightmap_mm", "hand_picked_mm",
+                                  "no_motion_mm", "recommended", "at_bound", *intervals]
     assert set(best.loss) == {"prt_cd", "hand-picked"} and set(best.level) == {1, 2}
-    assert best[["level", "loss", *names]].notna().all().all() and (best.val_heightmap_mm > 0).all()
+    assert best.drop(columns=["dataset", "at_bound", *intervals]).notna().all().all()
+    assert (best.val_heightmap_mm > 0).all()
     # the intervals of what each run identified (level 1 holds the frictions), holding its estimate
     for row in best[best.loss == "prt_cd"].itertuples():
         for n in names[:4] if row.level == 1 else names:
             assert getattr(row, f"{n}_low") <= getattr(row, n) <= getattr(row, f"{n}_high"), (row.level, n)
+    hand = best[best.loss == "hand-picked"].set_index("level")
+    assert (hand.val_heightmap_mm == hand.hand_picked_mm).all() and (hand.no_motion_mm > hand.hand_picked_mm).all()
+    assert best.groupby("level").recommended.sum().tolist() == [1, 1]
+    generalisation = pd.read_csv(tables / "generalisation.csv")
+    assert list(generalisation.columns) == ["level", "loss", "dataset", "seed", "pair", "identified_mm",
+                                            "hand_picked_mm", "no_motion_mm", "change"]
+    # each run is tried on the clay train and validation datapoints of both levels it did not train on
+    assert sorted(generalisation.groupby("level").size()) == [3, 3]
+    assert generalisation.change.tolist() == pytest.approx(
+        ((generalisation.identified_mm - generalisation.hand_picked_mm) / generalisation.hand_picked_mm).tolist())
     ood = pd.read_csv(tables / "ood_heightmap.csv")
     assert list(ood.columns) == ["motion", "config", "loss", "dataset", "heightmap_mm"]
     assert set(ood.motion) == {"flattening"} and "hand-picked" in set(ood.loss)
@@ -206,8 +247,8 @@ def test_tiny_workflow_makes_every_table(tiny_run):
         ["level", "parameter"]).truth
     level = recovery.level.iloc[0]
     assert truth[(level, "E/rho")] == pytest.approx(truth[(level, "E")] / truth[(level, "rho")])
-    for name in ("motions", "parameters", "best_params", "ood_heightmap", "recovery_error", "uncertainty",
-                 "identifiability_R0_uncertainty", "identifiability_R0_coverage"):
+    for name in ("motions", "parameters", "best_params", "generalisation", "ood_heightmap", "recovery_error",
+                 "uncertainty", "identifiability_R0_uncertainty", "identifiability_R0_coverage"):
         assert (tables / f"{name}.md").read_text().count("|") > 10
         assert r"\toprule" in (tables / f"{name}.tex").read_text()
         assert (tables / f"{name}.csv.provenance.json").is_file()

@@ -1,6 +1,6 @@
 """Benchmarks that print figures (not timed tests), and the measurement behind the cost table.
 
-    python -m dpsi.bench simulator [--json] [--density 4e7] [--motions poking-1 ...] [--arch cuda] [--precision f32]
+    python -m dpsi.bench simulator [--json] [--density 4e7] [--motions poking-1 ...] [--arch cuda]
     python -m dpsi.bench scaling [--json] [--density 3.3e8] [--motion poking-1]
     python -m dpsi.bench losses [--json] [--points 3000]
 
@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .arguments import at_least, positive, simulator_settings
 from .progress import Progress
 
 BENCH_MOTIONS = {"poking-1": "round", "poking-shifting-1": "round", "flattening": "cylinder"}
@@ -218,37 +219,45 @@ def _fmt(value) -> str:
     return f"{value:.2f}" if isinstance(value, float) else str(value)
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dpsi.bench", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
     sim = sub.add_parser("simulator", help="forward/backward time and peak memory of the simulator")
-    sim.add_argument("--density", type=float, default=4e7, help="particles per m³ (default 4e7)")
+    sim.add_argument("--density", type=positive, default=4e7, help="particles per m³ (default 4e7)")
     sim.add_argument("--motions", nargs="+", default=list(BENCH_MOTIONS), choices=list(BENCH_MOTIONS))
     sim.add_argument("--json", action="store_true", help="print one JSON list of records")
     sim.add_argument("--arch", choices=sorted(TARGETS), default="cpu", help="where Taichi runs (default cpu)")
-    sim.add_argument("--precision", choices=["f64", "f32"], default="f64", help="floating point (default f64)")
     scaling = sub.add_parser("scaling", help="speed-up of every CPU thread over one on a larger scene")
-    scaling.add_argument("--density", type=float, default=3.3e8, help="particles per m³ (default 3.3e8)")
+    scaling.add_argument("--density", type=positive, default=3.3e8, help="particles per m³ (default 3.3e8)")
     scaling.add_argument("--motion", default="poking-1", choices=list(BENCH_MOTIONS))
     scaling.add_argument("--json", action="store_true", help="print one JSON list of records")
     losses = sub.add_parser("losses", help="time of the EMD and Chamfer losses with gradient")
-    losses.add_argument("--points", type=int, default=3000)
+    losses.add_argument("--points", type=at_least(1), default=3000, help="points of each cloud (default 3000)")
     losses.add_argument("--json", action="store_true")
     one = sub.add_parser("_one")  # internal: one motion in this process
     one.add_argument("motion")
-    one.add_argument("density", type=float)
-    one.add_argument("--iterations", type=int, default=1)
-    one.add_argument("--simulator", default="{}", help="SimulatorConfig settings as JSON")
+    one.add_argument("density", type=positive)
+    one.add_argument("--iterations", type=at_least(1), default=1)
+    one.add_argument("--simulator", type=simulator_settings(), default={}, help="SimulatorConfig settings as JSON")
     args = parser.parse_args(argv)
+    try:
+        _run(args)
+    except (ValueError, RuntimeError, OSError) as err:
+        print(f"{parser.prog}: error: {err}", file=sys.stderr)
+        return 1
+    return 0
 
+
+def _run(args) -> None:
+    """Run the benchmark ``args`` name and print its figures."""
     if args.what == "_one":
         from .simulation import SimulatorConfig
 
-        config = SimulatorConfig(**json.loads(args.simulator))
+        config = SimulatorConfig(**args.simulator)
         print(json.dumps(measure_simulation(args.motion, args.density, args.iterations, config)))
     elif args.what == "simulator":
-        settings = {"arch": args.arch, "precision": args.precision}
+        settings = {"arch": args.arch}
         records = []
         with Progress(len(args.motions), "benchmark") as bar:
             for k, motion in enumerate(args.motions, 1):
@@ -259,7 +268,7 @@ def main(argv=None) -> None:
             print(json.dumps(records))
         else:
             print_table(records, (*SIMULATOR_KEYS, "first_forward_s", "first_backward_s", "taichi_cache"))
-            print(f"\ntargets ({args.arch}, {args.precision}):")
+            print(f"\ntargets ({args.arch}):")
             print("\n".join(target_lines(records, args.arch)))
     elif args.what == "scaling":
         records = measure_scaling(args.motion, args.density)
@@ -274,4 +283,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

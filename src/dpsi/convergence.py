@@ -32,10 +32,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from dpsi.arguments import at_least, positive, simulator_settings
 from dpsi.bench import peak_rss_mb
 from dpsi.effectors import by_name
 from dpsi.heightmap import CELLS, SIZE, height_map, heightmap_distance_mm
-from dpsi.motions import Trajectory, get_motion, plan, resample
+from dpsi.motions import MOTIONS as KNOWN_MOTIONS, Trajectory, get_motion, plan, resample
+from dpsi.output_folder import writable_folder
 from dpsi.reconstruction.filling import fill, lattice_spacing
 from dpsi.shapes import random_lump
 from dpsi.twin import CENTRE, TABLE_Z
@@ -226,30 +228,40 @@ def recommended_dx_mm(table: pd.DataFrame, tolerance_mm: float = TOLERANCE_MM) -
     return float(chosen)
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dpsi.convergence", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--motions", nargs="+", default=list(MOTIONS), help="motions (round effector)")
-    parser.add_argument("--dx", nargs="+", type=float, default=list(DX_MM), help="grid cells in mm")
-    parser.add_argument("--seed", type=int, default=LUMP_SEED, help="seed of the lump and trajectories")
-    parser.add_argument("--simulator", default="{}",
+    parser.add_argument("--motions", nargs="+", default=list(MOTIONS), choices=sorted(KNOWN_MOTIONS),
+                        metavar="MOTION", help=f"motions (round effector; default {' '.join(MOTIONS)})")
+    parser.add_argument("--dx", nargs="+", type=positive, default=list(DX_MM), help="grid cells in mm")
+    parser.add_argument("--seed", type=at_least(0), default=LUMP_SEED, help="seed of the lump and trajectories")
+    parser.add_argument("--simulator", type=simulator_settings(("dx", "max_particles")), default={},
                         help='further SimulatorConfig settings as JSON, e.g. {"arch": "cpu", "cfl": 0.7}')
     parser.add_argument("--out", default="results/tables/convergence.csv",
                         help="CSV to write (with .md and .tex beside it)")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
-    simulator = json.loads(args.simulator)
-    if args.child:
-        _save_run(Path(args.child), simulate_dx(args.dx[0] / 1000, tuple(args.motions), args.seed, simulator))
-        return
-    from dpsi.reporting.tables import write_table
+    try:
+        if args.child:
+            _save_run(Path(args.child), simulate_dx(args.dx[0] / 1000, tuple(args.motions), args.seed, args.simulator))
+            return 0
+        if len(set(args.dx)) < 2:
+            parser.error(f"argument --dx: needs at least two different grid cells, got {args.dx}")
+        if Path(args.out).is_dir():
+            parser.error(f"argument --out: {args.out} is a folder; give the CSV file to write")
+        writable_folder(Path(args.out).parent)
+        from dpsi.reporting.tables import write_table
 
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    table = resolution_study(args.dx, args.motions, args.seed, simulator, log=lambda s: print(s, flush=True))
-    write_table(table, args.out, caption="Resolution study: clay truth, round effector, lump seed "
-                f"{args.seed}; height-map distances to the finest dx")
+        table = resolution_study(args.dx, args.motions, args.seed, args.simulator,
+                                 log=lambda s: print(s, flush=True))
+        write_table(table, args.out, caption="Resolution study: clay truth, round effector, lump seed "
+                    f"{args.seed}; height-map distances to the finest dx")
+    except (ValueError, RuntimeError, OSError) as err:
+        print(f"{parser.prog}: error: {err}", file=sys.stderr)
+        return 1
     print(table.to_string(index=False))
     print(f"coarsest dx within {TOLERANCE_MM:g} mm of the finest: {recommended_dx_mm(table):g} mm")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

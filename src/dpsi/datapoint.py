@@ -74,7 +74,7 @@ def save_datapoint(path: str | Path, dp: Datapoint) -> None:
 
 def load_datapoint(path: str | Path) -> Datapoint:
     """Read a datapoint written by :func:`save_datapoint`; errors name the file."""
-    meta, arrays = load_arrays(path, _ARRAYS, "prepared datapoint")
+    meta, arrays = load_arrays(path, _ARRAYS, "prepared datapoint", "prepare")
     arrays = {k: a.astype(float) for k, a in arrays.items()}
     trajectory = Trajectory(arrays.pop("trajectory_positions"), arrays.pop("trajectory_yaw"), meta.pop("dt"))
     shape = meta.pop("effector")

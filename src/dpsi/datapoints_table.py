@@ -10,11 +10,17 @@ from collections.abc import Mapping
 
 import pandas as pd
 
-from dpsi.motions import MOTIONS
+from dpsi.csv_files import read_csv
+from dpsi.motions import MOTIONS, check_effector
 
 COLUMNS = ("id", "motion", "effector", "level", "role", "material")
 ROLES = ("train", "validation", "ood")
-ID_RULE = "letters, digits, '_', '-' or '.', starting with a letter or digit (no path separators)"
+ID_MAX_LENGTH = 100
+"""Longest datapoint id (characters). Ids become parts of file names, and a file name may hold 255 bytes
+(NAME_MAX of common file systems); the longest name the workflow makes of an id (a hidden temporary copy of
+a provenance record, ``.<id>_before.npy.provenance.<random>.tmp.json``) adds about 45 characters."""
+ID_RULE = (f"letters, digits, '_', '-' or '.', starting with a letter or digit (no path separators), at most "
+           f"{ID_MAX_LENGTH} characters")
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
@@ -25,9 +31,11 @@ class TableError(ValueError):
 def check_id(datapoint_id: str, where: str) -> str:
     """``datapoint_id`` if it is a safe file name (see :data:`ID_RULE`); otherwise :class:`TableError`
     naming ``where``."""
-    if not isinstance(datapoint_id, str) or not _ID.match(datapoint_id):
-        raise TableError(f"{where}: id {datapoint_id!r} must be {ID_RULE}; rename the datapoint "
-                         "(and its folder)")
+    if not isinstance(datapoint_id, str) or not _ID.match(datapoint_id) or len(datapoint_id) > ID_MAX_LENGTH:
+        shown = repr(datapoint_id)
+        if len(shown) > 60:
+            shown = f"{shown[:40]}… ({len(datapoint_id)} characters)"
+        raise TableError(f"{where}: id {shown} must be {ID_RULE}; rename the datapoint (and its folder)")
     return datapoint_id
 
 
@@ -49,9 +57,10 @@ def check_table(df: pd.DataFrame, path: str | os.PathLike,
         if effectors is not None:
             if r.effector not in effectors:
                 raise TableError(f"{where}: unknown effector {r.effector!r}; known effectors are {sorted(effectors)}")
-            tied = MOTIONS[r.motion].effector
-            if tied is not None and effectors[r.effector] not in (None, tied):
-                raise TableError(f"{where}: motion {r.motion} is made with the {tied} effector, not {r.effector}")
+            try:
+                check_effector(r.motion, r.effector, effectors[r.effector])
+            except ValueError as e:
+                raise TableError(f"{where}: {e}") from None
         if r.level not in ("1", "2"):
             raise TableError(f"{where}: level must be 1 or 2, not {r.level!r}")
         expected = MOTIONS[r.motion].level
@@ -72,10 +81,10 @@ def read_table(path: str | os.PathLike, effectors: Mapping[str, str | None] | No
     if not os.path.isfile(path):
         raise TableError(f"{path}: datapoints table not found")
     try:
-        df = pd.read_csv(path, dtype=str, keep_default_na=False)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise TableError(f"{path}: not a readable CSV file ({e})") from None
+        df = read_csv(path, dtype=str, keep_default_na=False)
+    except ValueError as e:
+        raise TableError(str(e)) from None
     return check_table(df, path, effectors)
 
 
-__all__ = ["COLUMNS", "ROLES", "ID_RULE", "TableError", "check_id", "check_table", "read_table"]
+__all__ = ["COLUMNS", "ROLES", "ID_MAX_LENGTH", "ID_RULE", "TableError", "check_id", "check_table", "read_table"]

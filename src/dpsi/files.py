@@ -11,6 +11,8 @@ import contextlib
 import json
 import os
 import tempfile
+import zipfile
+import zlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -59,17 +61,20 @@ def save_arrays(path: str | os.PathLike, meta: Mapping, arrays: Mapping[str, np.
         np.savez_compressed(f, meta=json.dumps(dict(meta)), **arrays)
 
 
-def load_arrays(path: str | os.PathLike, keys: Sequence[str], what: str) -> tuple[dict, dict[str, np.ndarray]]:
+def load_arrays(path: str | os.PathLike, keys: Sequence[str], what: str,
+                stage: str) -> tuple[dict, dict[str, np.ndarray]]:
     """``(meta, arrays)`` of a file written by :func:`save_arrays`, the arrays named in ``keys``; errors
-    name the file and say it is not a ``what`` file."""
+    name the file, say it is not a (complete) ``what`` file and name the ``stage`` that makes it."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"{what} file {path} does not exist; run the stage that makes it first")
+        raise FileNotFoundError(f"{what} file {path} does not exist; run the stage that makes it ({stage}) first")
     try:
         with np.load(path, allow_pickle=False) as data:
             return json.loads(str(data["meta"])), {k: np.asarray(data[k]) for k in keys}
-    except (KeyError, ValueError, OSError) as err:
-        raise ValueError(f"{path} is not a {what} file: {err}") from err
+    except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as err:
+        raise ValueError(f"{path} is not a complete {what} file ({err}): it is damaged, "
+                         f"cut short or not made by this stage; delete it and rerun the stage that makes it "
+                         f"({stage})") from err
 
 
 __all__ = ["atomic_output", "check_points", "save_arrays", "load_arrays"]

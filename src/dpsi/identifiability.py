@@ -29,14 +29,17 @@ import pandas as pd
 from dpsi.datapoint import Datapoint
 from dpsi.heightmap import heightmap_distance_mm
 from dpsi.identification import evaluate, scene, targets
+from dpsi.landscapes import SCAN_FACTORS, scan_values
 from dpsi.losses import loss_by_name, simulated_heightmap
-from dpsi.parameters import HAND_PICKED, IDENTIFIED, LEVEL1_FIXED, LOWER, UPPER, Parameters, scale_free
+from dpsi.parameters import IDENTIFIED, Parameters, at_level, hand_picked, scale_free
 from dpsi.simulation import Simulator, SimulatorConfig
 
 RUNGS = {
     "R0": "same model: targets are the identification simulator's own result at the truth",
     "R1": "reconstructed: twin at the identification resolution, targets through capture and reconstruction",
     "R2": "finer twin: the main pipeline's datapoints, twin simulated finer than identification",
+    "R1m": "R1 with motion error: the twin's tool strays from the path the datapoint records (motion_error)",
+    "R1r": "R1m with each datapoint's motion offset registered from its dent (dpsi.motion_offsets) first",
 }
 """The rungs, from the easiest to the real pipeline."""
 
@@ -84,22 +87,24 @@ def same_model_datapoint(dp: Datapoint, simulator: Simulator, truth: Parameters)
 
 def reconstructed_twin_datapoint(root: str | os.PathLike, datapoint_id: str, plan, seed: int,
                                  config: SimulatorConfig, density: float,
-                                 materials: Mapping[str, Parameters]) -> Datapoint:
+                                 materials: Mapping[str, Parameters], motion_error=None) -> Datapoint:
     """R1: the twin datapoint ``datapoint_id`` of ``plan`` (same lump and trajectory as the main twin with
     ``seed`` and ground truth ``materials``) simulated with the identification's ``config`` and ``density``
-    (particles/m³) under ``root``, then reconstructed from its camera views and prepared at ``density``."""
+    (particles/m³) under ``root``, then reconstructed from its camera views and prepared at ``density``.
+    R1m: the same with the twin's tool straying from the recorded path by ``motion_error``
+    (:class:`dpsi.twin.MotionError`)."""
     from dpsi.prepare import prepare_datapoint  # open3d and pymeshlab: only this rung needs them
     from dpsi.rawdata import load_raw_dataset
     from dpsi.twin import generate_datapoint, write_twin_table
 
-    write_twin_table(root, plan, seed, dict(materials), config, density)
+    write_twin_table(root, plan, seed, dict(materials), config, density, motion_error)
     generate_datapoint(root, datapoint_id)
     return prepare_datapoint(load_raw_dataset(root, only=[datapoint_id]), datapoint_id, density)
 
 
 def level_truth(truth: Parameters, level: int) -> Parameters:
     """The truth as a run of ``level`` can reach it: level 1 holds the frictions at their fixed values."""
-    return truth.replace(**LEVEL1_FIXED) if level == 1 else truth
+    return at_level(truth, level)
 
 
 def reference(simulator: Simulator, training: Sequence[Datapoint], validation: Sequence[Datapoint],
@@ -117,12 +122,11 @@ def reference(simulator: Simulator, training: Sequence[Datapoint], validation: S
         return float(np.mean([evaluate(simulator, dp, params, simulated.get(id(dp)))["heightmap_mm"]
                               for dp in validation]))
 
-    hand_picked = HAND_PICKED.replace(**LEVEL1_FIXED) if level == 1 else HAND_PICKED
     no_motion = float(np.mean([heightmap_distance_mm(simulated_heightmap(dp.particles, dp.heightmap_target()),
                                                      dp.heightmap) for dp in validation]))
     return {"level": level, "truth": truth.as_dict(), "loss_at_truth_mm": loss_at_truth,
             "val_heightmap_truth_mm": val_heightmap(truth, at_truth),
-            "val_heightmap_hand_picked_mm": val_heightmap(hand_picked, {}),
+            "val_heightmap_hand_picked_mm": val_heightmap(hand_picked(level), {}),
             "val_heightmap_no_motion_mm": no_motion}
 
 
@@ -176,13 +180,7 @@ def recovery_summary(table: pd.DataFrame) -> pd.DataFrame:
 
 
 SCAN_PARAMETERS = ("E", "yield_stress")
-SCAN_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0, 4.0)
-"""The one-parameter scans of :func:`loss_minima`: these parameters at these multiples of the truth."""
-
-
-def scan_values(name: str, true: float) -> np.ndarray:
-    """Parameter ``name`` at :data:`SCAN_FACTORS` times ``true`` (SI), those within its range."""
-    return np.array([true * f for f in SCAN_FACTORS if LOWER[name] <= true * f <= UPPER[name]])
+"""The one-parameter scans of :func:`loss_minima`: these parameters at :data:`SCAN_FACTORS` times the truth."""
 
 
 def bias_sources(simulator: Simulator, dp: Datapoint, ground_truth, density: float, after_cloud: np.ndarray,

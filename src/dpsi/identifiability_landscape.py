@@ -2,7 +2,7 @@
 training datapoints, and the region of parameters the data cannot tell from the truth.
 
 On the twin the truth θ* is known, so a landscape answers what no identification run can: which parameters
-the data determine. The grid holds E and σ_y at :data:`~dpsi.identifiability.SCAN_FACTORS` times the truth (within their ranges), ν, ρ
+the data determine. The grid holds E and σ_y at :data:`~dpsi.landscapes.SCAN_FACTORS` times the truth (within their ranges), ν, ρ
 and the frictions at the truth. A cell whose loss is no higher than the loss at θ* fits the data at least
 as well as the truth does, so no optimiser has a reason to prefer θ* to it. How far those cells reach along
 a parameter is how well the data determine it: at R0 the truth alone (every loss is zero there and only
@@ -18,14 +18,14 @@ import numpy as np
 import pandas as pd
 
 from dpsi.datapoint import Datapoint
-from dpsi.identifiability import level_truth, scan_values
-from dpsi.landscape_compute import on_grid
-from dpsi.landscapes import Landscape, Pair, fixed_cell
+from dpsi.identifiability import level_truth
+from dpsi.landscape_compute import compute
+from dpsi.landscapes import AROUND_FIXED, SCAN_FACTORS, Landscape, fixed_cell
 from dpsi.parameters import Parameters
 from dpsi.simulation import Simulator
 
-PAIR = Pair("E", "yield_stress", 1)
-"""The parameters on the axes: the two whose recovery the ladder's targets name, at level 1."""
+PAIR = AROUND_FIXED[0]
+"""The parameters on the axes, (E, σ_y) at level 1: the two whose recovery the ladder's targets name."""
 
 COLUMNS = ("loss", "parameter", "truth", "argmin", "loss_at_truth_mm", "loss_min_mm", "as_good_from",
            "as_good_to", "as_good_cells", "cells")
@@ -36,9 +36,7 @@ def truth_landscape(simulator: Simulator, datapoints: Sequence[Datapoint], truth
                     losses: Sequence[str], progress: TextIO | None = None) -> Landscape:
     """``losses`` (mm, mean over ``datapoints``) over :data:`PAIR` around ``truth``, the other parameters at
     the truth as level 1 holds them (frictions fixed)."""
-    truth = level_truth(truth, PAIR.level)
-    return on_grid(simulator, datapoints, PAIR, truth, scan_values(PAIR.first, getattr(truth, PAIR.first)),
-                   scan_values(PAIR.second, getattr(truth, PAIR.second)), losses, progress)
+    return compute(simulator, datapoints, PAIR, level_truth(truth, PAIR.level), len(SCAN_FACTORS), losses, progress)
 
 
 def as_good_as_truth(landscape: Landscape) -> pd.DataFrame:

@@ -13,15 +13,19 @@ for a run validated on its own training datapoints, by the lowest training loss 
 A datapoint whose simulation raises :class:`SimulationError` or whose gradient fails
 :func:`dpsi.optim.screen_gradients` is skipped for that row and counted. If every training
 datapoint is skipped, no update is possible and — the simulation being deterministic — none ever
-will be, so the run stops early and says so in its summary.
+will be: the run fails with :class:`IdentificationError`, giving each datapoint's cause, and writes no
+summary (its rows so far stay in its state).
 
 Output folder: ``log.csv`` (the rows), ``summary.json`` (best row, its parameters, relative errors
 against a known truth) and ``state.json`` (Adam state + rows, rewritten atomically after every row).
+The folder is claimed first (:func:`dpsi.output_folder.claimed`): writable, one run at a time, and
+never writing over a file of these names that the run did not write.
 Running again with the same arguments resumes from the last completed row and gives the same
 result as an uninterrupted run; asking for more iterations than a finished run had extends it. The state
 is keyed on everything that determines the result (the run's settings, a hash of the datapoints' arrays
 and names, the simulator settings and the dpsi library's source code), so a state left by other inputs
-or other code is never resumed.
+or other code is never resumed; nor is one whose log and optimiser state disagree (edited by hand):
+replaying the log's gradients through Adam must give its parameters and its optimiser state exactly.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ import json
 import math
 import time
 from pathlib import Path
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import NamedTuple, Sequence, TextIO
 
 import numpy as np
@@ -40,9 +44,10 @@ import pandas as pd
 
 from dpsi.datapoint import Datapoint
 from dpsi.losses import LOSSES, VALIDATION_METRICS, Targets, loss_terms_by_name, validation_metrics
-from dpsi.optim import Adam, screen_gradients
-from dpsi.parameters import IDENTIFIED, LEVEL1_FIXED, LOWER, NAMES, UPPER, Parameters, clip, random_initial
+from dpsi.optim import Adam, screen_gradients, unusable
+from dpsi.parameters import IDENTIFIED, LEVEL1_FIXED, LOWER, NAMES, UPPER, Parameters, check_known, clip, random_initial
 from dpsi.files import atomic_output
+from dpsi.output_folder import claimed
 from dpsi.progress import Progress
 from dpsi.provenance import library_checksum
 from dpsi.simulation import Scene, SimulationError, Simulator, SimulatorConfig
@@ -61,11 +66,10 @@ COLUMNS = ("iteration", *NAMES, "train_loss_mm", *(f"grad_{n}" for n in NAMES),
 SELECT_COLUMNS = {"validation": "val_heightmap_mm", "training": "train_loss_mm"}
 """How a run's best iteration is chosen → the log column whose lowest finite value chooses it."""
 
-_CANNOT_UPDATE = "every training datapoint was skipped at iteration {k}, so θ cannot change any more"
-
 
 class IdentificationError(ValueError):
-    """Bad run arguments, or an output folder holding a different run."""
+    """Bad run arguments, an output folder holding a different run, or a run that cannot learn (every
+    training datapoint skipped)."""
 
 
 def scene(dp: Datapoint) -> Scene:
@@ -96,37 +100,40 @@ def _nan_gradient() -> dict[str, float]:
 
 class TrainingPass(NamedTuple):
     """One pass over the training set at θ: the mean loss (mm) and screened mean gradient (mm per parameter
-    unit; None if all were skipped) over the datapoints kept by the SPEC §6 rules, the number skipped, and the
+    unit; None if all were skipped) over the datapoints kept by the SPEC §6 rules, the number skipped, the
     final particle positions (n, 3) in m and the loss's terms (mm, :class:`dpsi.losses.LossTerms`) of each
     datapoint whose simulation succeeded, keyed by ``id()`` of the datapoint object (so that validating on the
-    same objects needs no second simulation)."""
+    same objects needs no second simulation), and why each skipped datapoint was skipped ("<id>: <cause>")."""
 
     loss_mm: float
     gradient: dict[str, float] | None
     skipped: int
     finals: dict[int, np.ndarray]
     terms: dict[int, np.ndarray]
+    causes: tuple[str, ...] = ()
 
 
 def training_gradient(simulator: Simulator, training: Sequence[Datapoint], params: Parameters,
                       loss: str) -> TrainingPass:
     """Simulate every training datapoint with ``params`` and back-propagate ``loss`` (see :class:`TrainingPass`)."""
     loss_fn = loss_terms_by_name(loss)
-    values, gradients, finals, terms = [], [], {}, {}
+    values, gradients, finals, terms, causes = [], [], {}, {}, []
     for dp in training:
         try:
             final = simulator.forward(scene(dp), params)
             finals[id(dp)] = final
             value, d_positions, terms[id(dp)] = loss_fn(final, targets(dp))
             gradient = simulator.backward(d_positions)
-        except SimulationError:
-            value, gradient = math.nan, _nan_gradient()
+            cause = unusable(gradient, value)
+        except SimulationError as err:
+            value, gradient, cause = math.nan, _nan_gradient(), f"simulation failed: {err}"
         values.append(value)
         gradients.append(gradient)
+        causes.append(cause)
     screened = screen_gradients(gradients, values)
-    kept = [v for v, g in zip(values, gradients) if screen_gradients([g], [v]).skipped == 0]
+    kept = [v for v, cause in zip(values, causes) if cause is None]
     return TrainingPass(float(np.mean(kept)) if kept else math.nan, screened.gradient, screened.skipped, finals,
-                        terms)
+                        terms, tuple(f"{dp.id}: {cause}" for dp, cause in zip(training, causes) if cause))
 
 
 def validation(simulator: Simulator, datapoints: Sequence[Datapoint], params: Parameters,
@@ -194,9 +201,10 @@ def check_run(level: int, loss: str, training: Sequence[Datapoint], validation_s
 
 
 def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_targets: Sequence[str]) -> None:
-    """Raise naming ``dp`` if the simulator cannot hold it, steps at another length than the simulator, or
-    one of its ``emd_targets`` (fields measured by an earth mover's distance) is empty or has more points
-    than the particles; the messages name the option to change."""
+    """Raise naming ``dp`` if the simulator cannot hold it (too many particles or steps, or it leaves the
+    simulated box), steps at another length than the simulator, or one of its ``emd_targets`` (fields
+    measured by an earth mover's distance) is empty or has more points than the particles; the messages
+    name the option to change."""
     where = f"{dataset} datapoint {dp.id!r}"
     n = len(dp.particles)
     if n > config.max_particles:
@@ -209,6 +217,10 @@ def _check_datapoint(dp: Datapoint, dataset: str, config: SimulatorConfig, emd_t
     if dp.trajectory.n_steps > config.max_steps:
         raise IdentificationError(f"{where} has {dp.trajectory.n_steps} steps, more than the simulator's "
                                   f"max_steps={config.max_steps}")
+    try:
+        config.check_box(scene(dp))
+    except SimulationError as err:
+        raise IdentificationError(f"{where}: {err}") from None
     for field in emd_targets:
         k = len(getattr(dp, field))
         if not 0 < k <= n:
@@ -223,12 +235,10 @@ def hold_known(initial: Parameters, known: Mapping[str, float] | None, level: in
     set; they must be identified at ``level`` (the others are fixed anyway), in range, and leave at least
     one parameter to identify."""
     known = dict(known or {})
-    wrong = sorted(set(known) - set(IDENTIFIED[level]))
-    if wrong:
-        raise IdentificationError(f"known parameter(s) {wrong} are not identified at level {level}; "
-                                  f"known values may be given for {list(IDENTIFIED[level])}")
-    if set(known) == set(IDENTIFIED[level]):
-        raise IdentificationError(f"every parameter of level {level} is known: nothing left to identify")
+    try:
+        check_known(known, level)
+    except ValueError as err:
+        raise IdentificationError(str(err)) from None
     try:
         return initial.replace(**{n: float(v) for n, v in known.items()})
     except ValueError as err:
@@ -272,7 +282,18 @@ def inputs_key(training: Sequence[Datapoint], validation_set: Sequence[Datapoint
     return digest.hexdigest()
 
 
+def _is_state(path: Path) -> bool:
+    """Whether ``path`` holds an identification state of any version (a JSON object with a run and a log):
+    a file this module wrote, even before output folders recorded their files."""
+    try:
+        state = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(state, dict) and {"version", "run", "log"} <= set(state)
+
+
 def _load_state(path: Path, fingerprint: dict, key: str) -> dict | None:
+    """The state stored at ``path`` (None if there is none), if it belongs to this run."""
     if not path.exists():
         return None
     try:
@@ -296,6 +317,52 @@ def _load_state(path: Path, fingerprint: dict, key: str) -> dict | None:
     return state
 
 
+def _replay(path: Path, state: dict, adam: Adam, initial: Parameters) -> list[dict]:
+    """The rows of a stored ``state``, after replaying their gradients through ``adam`` (fresh, at
+    ``initial``): every row's parameters and the stored optimiser state must be what the replay gives,
+    exactly, or the state (edited by hand, or damaged) is refused."""
+    def refuse(problem: str):
+        raise IdentificationError(f"{path} cannot be resumed: {problem}; was it edited? Delete it to restart")
+
+    rows = state["log"]
+    if not isinstance(rows, list) or not rows:
+        refuse("its log has no rows")
+    for k, row in enumerate(rows):
+        if not isinstance(row, dict) or set(row) != set(COLUMNS) or row["iteration"] != k:
+            refuse(f"its log row {k} is not row {k} of an identification log")
+        if k:
+            gradient = _gradient_of(rows[k - 1])
+            if gradient is None:
+                refuse(f"its log row {k - 1} has no gradient, yet an update follows it")
+            adam.step(gradient)
+        expected = initial.replace(**adam.values).as_dict()
+        if any(row[n] != expected[n] for n in NAMES):
+            refuse(f"the parameters of its log row {k} are not those the log's gradients give "
+                   f"({ {n: row[n] for n in adam.values} } instead of { {n: expected[n] for n in adam.values} })")
+    if state["adam"] != adam.state():
+        refuse(f"its optimiser state disagrees with its log (Adam after {state['adam'].get('iteration')} updates "
+               f"at {state['adam'].get('values')}; the log's {len(rows) - 1} updates give {adam.values})"
+               if isinstance(state["adam"], dict) else "its optimiser state is not a mapping")
+    return rows
+
+
+def _resume(path: Path, fingerprint: dict, key: str, fresh: Callable[[], Adam], initial: Parameters,
+            restart: bool, note: Callable[[str], None]) -> tuple[Adam, list[dict]]:
+    """The optimiser and rows of the run's stored state at ``path`` (a ``fresh`` optimiser and no rows if
+    there is none); ``restart``: discard a state that cannot be resumed, saying why with ``note``, instead
+    of refusing it."""
+    try:
+        state = _load_state(path, fingerprint, key)
+        adam = fresh()
+        return adam, _replay(path, state, adam, initial) if state else []
+    except IdentificationError as err:
+        if not restart:
+            raise
+        note(f"starting afresh: {err}")
+        path.unlink()
+        return fresh(), []
+
+
 def _save_state(path: Path, fingerprint: dict, key: str, adam: Adam, rows: list[dict],
                 uncertainty: dict | None = None) -> None:
     state = {"version": STATE_VERSION, "run": fingerprint, "inputs": key, "adam": adam.state(), "log": rows}
@@ -303,9 +370,8 @@ def _save_state(path: Path, fingerprint: dict, key: str, adam: Adam, rows: list[
         tmp.write_text(json.dumps(state if uncertainty is None else {**state, "uncertainty": uncertainty}))
 
 
-def _row(k: int, params: Parameters, loss_mm: float, gradient: dict | None, skipped: int,
+def _row(k: int, params: Parameters, loss_mm: float, gradient: dict, skipped: int,
          metrics: dict, val_skipped: int, wall_s: float) -> dict:
-    gradient = gradient or _nan_gradient()
     return {"iteration": k, **params.as_dict(), "train_loss_mm": loss_mm,
             **{f"grad_{n}": gradient[n] for n in NAMES}, **{f"val_{m}": metrics[m] for m in METRICS},
             "skipped": skipped, "val_skipped": val_skipped, "wall_s": wall_s}
@@ -319,16 +385,16 @@ def _gradient_of(row: dict) -> dict[str, float] | None:
 def summarise(rows: Sequence[dict], fingerprint: dict, iterations: int, truth: Parameters | None,
               labels: Mapping | None = None, select: str = "validation") -> dict:
     """The run summary: its ``labels`` (what the run is, for the reports), best row (lowest finite value of
-    the :data:`SELECT_COLUMNS` column of ``select`` among rows k ≥ 1, or row 0 if there are none), its
-    parameters and metrics, the final parameters and, given ``truth``, the relative error
-    |best − truth| / |truth| of each parameter."""
+    the :data:`SELECT_COLUMNS` column of ``select`` among the updated rows k ≥ 1; None if none has one:
+    row 0 holds the initial values, which are never reported as identified), its parameters and metrics,
+    the final parameters and, given ``truth``, the relative error |best − truth| / |truth| of each
+    parameter."""
     column = _select_column(select)
-    candidates = [r for r in (rows[1:] or rows) if r[column] is not None and math.isfinite(r[column])]
+    candidates = [r for r in rows[1:] if r[column] is not None and math.isfinite(r[column])]
     best = min(candidates, key=lambda r: r[column]) if candidates else None
     completed = rows[-1]["iteration"]
     out = {**fingerprint, "labels": dict(labels or {}), "selected_by": select, "iterations": iterations,
            "completed_iterations": completed,
-           "stopped_early": None if completed == iterations else _CANNOT_UPDATE.format(k=completed),
            "skipped_total": int(sum(r["skipped"] for r in rows)),
            "wall_s": float(sum(r["wall_s"] for r in rows)),
            "final": {"iteration": completed, "parameters": {n: rows[-1][n] for n in NAMES}},
@@ -376,60 +442,55 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
     initial = hold_known(check_run(level, loss, training, validation_set, seed, iterations, initial, config),
                          known, level)
     held = tuple(known or ())
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     fingerprint = _fingerprint(level, loss, seed, initial, training, validation_set, held)
     key = inputs_key(training, validation_set, config)
-    if restart_if_different and (out_dir / STATE_FILE).exists():
-        try:
-            _load_state(out_dir / STATE_FILE, fingerprint, key)
-        except IdentificationError:
-            (out_dir / STATE_FILE).unlink()
-    state = _load_state(out_dir / STATE_FILE, fingerprint, key)
-    adam = Adam.from_state(state["adam"]) if state else Adam.for_level(initial, level, held)
-    rows: list[dict] = state["log"] if state else []
-    if rows and rows[-1]["iteration"] > iterations:
-        raise IdentificationError(f"{out_dir / STATE_FILE} already has {rows[-1]['iteration']} iterations, "
-                                  f"more than the {iterations} asked for")
-    bar = Progress(iterations, f"identify L{level} {loss} seed {seed}", progress)
-    while not rows or rows[-1]["iteration"] < iterations:
-        if rows:
-            gradient = _gradient_of(rows[-1])
-            if gradient is None:
-                bar.message("stopped early: " + _CANNOT_UPDATE.format(k=rows[-1]["iteration"]))
-                break
-            adam.step(gradient)
-        if simulator is None:
-            simulator = Simulator(config)
-        start = time.perf_counter()
-        params = initial.replace(**adam.values)
-        trained = training_gradient(simulator, training, params, loss)
-        metrics, val_skipped = validation(simulator, validation_set, params, trained.finals)
-        rows.append(_row(len(rows), params, trained.loss_mm, trained.gradient, trained.skipped, metrics,
-                         val_skipped, time.perf_counter() - start))
-        _save_state(out_dir / STATE_FILE, fingerprint, key, adam, rows)
-        row = rows[-1]
-        bar.update(row["iteration"], f"loss {row['train_loss_mm']:.1f} mm, val height map "
-                                     f"{row['val_heightmap_mm']:.1f} mm, skipped {row['skipped']}, {row['wall_s']:.1f} s")
-    bar.close()
-    with atomic_output(out_dir / LOG_FILE) as tmp:
-        pd.DataFrame(rows, columns=list(COLUMNS)).to_csv(tmp, index=False)
-    summary = summarise(rows, fingerprint, iterations, truth, labels, select)
-    if uncertainty and summary["best"] is not None:
-        block = (state or {}).get("uncertainty")
-        if not block or block["iteration"] != summary["best"]["iteration"]:
-            bar.message(f"measuring what the data determine at iteration {summary['best']['iteration']}")
-            block = {"iteration": summary["best"]["iteration"]}
-            try:
-                block.update(uncertainty_at(simulator or Simulator(config), training,
-                                            Parameters.checked(**summary["best"]["parameters"]), loss,
-                                            [n for n in IDENTIFIED[level] if n not in held]))
-            except (UncertaintyError, SimulationError) as err:
-                block["error"] = str(err)
-            _save_state(out_dir / STATE_FILE, fingerprint, key, adam, rows, block)
-        summary["uncertainty"] = block
-    with atomic_output(out_dir / SUMMARY_FILE) as tmp:
-        tmp.write_text(json.dumps(summary, indent=2) + "\n")
+    files = (STATE_FILE, LOG_FILE, SUMMARY_FILE)
+    with (claimed(out_dir, files, "dpsi identify", progress, adopt=_is_state) as out_dir,
+          Progress(iterations, f"identify L{level} {loss} seed {seed}", progress) as bar):
+        state_file = out_dir / STATE_FILE
+        adam, rows = _resume(state_file, fingerprint, key, lambda: Adam.for_level(initial, level, held), initial,
+                             restart_if_different, bar.message)
+        if rows and rows[-1]["iteration"] > iterations:
+            raise IdentificationError(f"{state_file} already has {rows[-1]['iteration']} iterations, "
+                                      f"more than the {iterations} asked for")
+        while not rows or rows[-1]["iteration"] < iterations:
+            if rows:
+                adam.step(_gradient_of(rows[-1]))
+            if simulator is None:
+                simulator = Simulator(config)
+            start = time.perf_counter()
+            params = initial.replace(**adam.values)
+            trained = training_gradient(simulator, training, params, loss)
+            if trained.gradient is None:
+                raise IdentificationError(
+                    f"nothing to learn from at iteration {len(rows)}: every training datapoint was skipped "
+                    f"(parameters {params.as_dict()}): " + "; ".join(trained.causes))
+            metrics, val_skipped = validation(simulator, validation_set, params, trained.finals)
+            rows.append(_row(len(rows), params, trained.loss_mm, trained.gradient, trained.skipped, metrics,
+                             val_skipped, time.perf_counter() - start))
+            _save_state(state_file, fingerprint, key, adam, rows)
+            row = rows[-1]
+            bar.update(row["iteration"], f"loss {row['train_loss_mm']:.1f} mm, val height map "
+                                         f"{row['val_heightmap_mm']:.1f} mm, skipped {row['skipped']}, "
+                                         f"{row['wall_s']:.1f} s")
+        with atomic_output(out_dir / LOG_FILE) as tmp:
+            pd.DataFrame(rows, columns=list(COLUMNS)).to_csv(tmp, index=False)
+        summary = summarise(rows, fingerprint, iterations, truth, labels, select)
+        if uncertainty and summary["best"] is not None:
+            block = (_load_state(state_file, fingerprint, key) or {}).get("uncertainty")
+            if not block or block["iteration"] != summary["best"]["iteration"]:
+                bar.message(f"measuring what the data determine at iteration {summary['best']['iteration']}")
+                block = {"iteration": summary["best"]["iteration"]}
+                try:
+                    block.update(uncertainty_at(simulator or Simulator(config), training,
+                                                Parameters.checked(**summary["best"]["parameters"]), loss,
+                                                [n for n in IDENTIFIED[level] if n not in held]))
+                except (UncertaintyError, SimulationError) as err:
+                    block["error"] = str(err)
+                _save_state(state_file, fingerprint, key, adam, rows, block)
+            summary["uncertainty"] = block
+        with atomic_output(out_dir / SUMMARY_FILE) as tmp:
+            tmp.write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
 

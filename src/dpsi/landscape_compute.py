@@ -17,7 +17,7 @@ import numpy as np
 
 from dpsi.datapoint import Datapoint
 from dpsi.identification import scene, targets
-from dpsi.landscapes import Landscape, Pair, axis
+from dpsi.landscapes import Landscape, Pair, grid_axes
 from dpsi.losses import loss_by_name
 from dpsi.parameters import Parameters
 from dpsi.progress import Progress
@@ -40,10 +40,9 @@ def mean_losses(simulator: Simulator, datapoints: Sequence[Datapoint], params: P
 
 def compute(simulator: Simulator, datapoints: Sequence[Datapoint], pair: Pair, fixed: Parameters,
             resolution: int, losses: Sequence[str], progress: TextIO | None = None) -> Landscape:
-    """The landscape of ``losses`` over ``pair`` (``resolution`` values per axis spanning each parameter's
-    full range) on ``datapoints``: :func:`on_grid` of :func:`dpsi.landscapes.axis`."""
-    return on_grid(simulator, datapoints, pair, fixed, axis(pair.first, resolution), axis(pair.second, resolution),
-                   losses, progress)
+    """The landscape of ``losses`` over ``pair`` on ``datapoints``: :func:`on_grid` of the pair's axes
+    (:func:`dpsi.landscapes.grid_axes`: ``resolution`` values over each full range, or around ``fixed``)."""
+    return on_grid(simulator, datapoints, pair, fixed, *grid_axes(pair, fixed, resolution), losses, progress)
 
 
 def on_grid(simulator: Simulator, datapoints: Sequence[Datapoint], pair: Pair, fixed: Parameters,

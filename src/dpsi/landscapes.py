@@ -36,12 +36,33 @@ PAIRS = (Pair("E", "nu", 1), Pair("yield_stress", "rho", 1), Pair("mu_table", "m
 """The pairs of SPEC §7.1: (E, ν) and (σ_y, ρ) at level 1, (μ_t, μ_m) at level 2."""
 
 
+AROUND_FIXED = (Pair("E", "yield_stress", 1),)
+"""Pairs drawn around the fixed values (at :data:`SCAN_FACTORS` times them) instead of over the full ranges:
+(E, σ_y), whose ranges span 30 and 20 times, and whose ratio the yield strain is what pokes determine."""
+
+SCAN_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0, 4.0)
+"""Multiples of the fixed value on the axes of the pairs around it."""
+
+
+def scan_values(name: str, centre: float) -> np.ndarray:
+    """Parameter ``name`` at :data:`SCAN_FACTORS` times ``centre`` (SI), those within its range."""
+    return np.array([centre * f for f in SCAN_FACTORS if LOWER[name] <= centre * f <= UPPER[name]])
+
+
 def pair_by_name(name: str) -> Pair:
-    """The pair of :data:`PAIRS` whose :attr:`Pair.name` is ``name``."""
-    for pair in PAIRS:
+    """The pair of :data:`PAIRS` or :data:`AROUND_FIXED` whose :attr:`Pair.name` is ``name``."""
+    for pair in PAIRS + AROUND_FIXED:
         if pair.name == name:
             return pair
-    raise ValueError(f"unknown parameter pair {name!r}; known pairs are {[p.name for p in PAIRS]}")
+    raise ValueError(f"unknown parameter pair {name!r}; known pairs are {[p.name for p in PAIRS + AROUND_FIXED]}")
+
+
+def grid_axes(pair: Pair, fixed: Parameters, resolution: int) -> tuple[np.ndarray, np.ndarray]:
+    """The two axes (SI) of ``pair``'s landscape: around ``fixed`` for :data:`AROUND_FIXED`, else
+    ``resolution`` values over each full range (:func:`axis`)."""
+    if pair in AROUND_FIXED:
+        return scan_values(pair.first, getattr(fixed, pair.first)), scan_values(pair.second, getattr(fixed, pair.second))
+    return axis(pair.first, resolution), axis(pair.second, resolution)
 
 
 def axis(name: str, resolution: int) -> np.ndarray:
@@ -100,7 +121,7 @@ def save_landscape(path: str | os.PathLike, landscape: Landscape) -> None:
 
 def load_landscape(path: str | os.PathLike) -> Landscape:
     """Read a landscape written by :func:`save_landscape`; errors name the file."""
-    meta, data = load_arrays(path, _ARRAYS, "landscape")
+    meta, data = load_arrays(path, _ARRAYS, "landscape", "landscape")
     try:
         return Landscape(Pair(meta["first"], meta["second"], int(meta["level"])), tuple(meta["losses"]),
                          data["first"], data["second"], data["values"], Parameters.from_array(data["fixed"]))
@@ -108,5 +129,5 @@ def load_landscape(path: str | os.PathLike) -> Landscape:
         raise ValueError(f"{path} is not a landscape file: {err}") from err
 
 
-__all__ = ["Pair", "PAIRS", "pair_by_name", "axis", "Landscape", "fixed_cell", "save_landscape",
+__all__ = ["Pair", "PAIRS", "AROUND_FIXED", "SCAN_FACTORS", "scan_values", "pair_by_name", "grid_axes", "axis", "Landscape", "fixed_cell", "save_landscape",
            "load_landscape"]

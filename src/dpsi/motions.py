@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from dpsi.csv_files import read_csv
 from dpsi.files import atomic_output
 
 DT = 0.01
@@ -129,6 +130,15 @@ def get_motion(name: str) -> Motion:
         return MOTIONS[name]
     except KeyError:
         raise KeyError(f"unknown motion {name!r}; known motions are {sorted(MOTIONS)}") from None
+
+
+def check_effector(motion: str, effector: str, kind: str | None) -> None:
+    """``ValueError`` if ``motion`` is made with one effector (SPEC §2: the out-of-distribution motions) and the
+    effector called ``effector``, of built-in ``kind`` (None for a dataset's own mesh effector, which may
+    stand for any), is another."""
+    tied = get_motion(motion).effector
+    if tied is not None and kind not in (None, tied):
+        raise ValueError(f"motion {motion} is made with the {tied} effector (SPEC §2), not {effector}")
 
 
 @dataclass(frozen=True)
@@ -272,10 +282,7 @@ def read_waypoints(path: str | os.PathLike) -> Waypoints:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: planner trajectory file not found")
-    try:
-        df = pd.read_csv(path)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path}: not a readable CSV file ({e})") from None
+    df = read_csv(path)
     missing = [c for c in _COLUMNS if c not in df.columns]
     if missing:
         raise ValueError(f"{path}: missing column(s) {missing}; expected {_COLUMNS}")
@@ -297,6 +304,6 @@ def write_waypoints(path: str | os.PathLike, waypoints: Waypoints) -> None:
 
 
 __all__ = [
-    "DT", "WAYPOINT_SPACING", "WAYPOINT_ANGLE", "Segment", "Motion", "MOTIONS", "get_motion",
+    "DT", "WAYPOINT_SPACING", "WAYPOINT_ANGLE", "Segment", "Motion", "MOTIONS", "get_motion", "check_effector",
     "Waypoints", "Trajectory", "resample", "plan", "trajectory", "read_waypoints", "write_waypoints",
 ]

@@ -103,12 +103,18 @@ class Screened(NamedTuple):
     skipped: int
 
 
-def _usable(gradient: Mapping[str, float], loss: float) -> bool:
-    """Whether one datapoint passes the SPEC §6 rules."""
-    values = [float(gradient[n]) for n in NAMES]
-    return (math.isfinite(loss)
-            and all(math.isfinite(g) and abs(g) <= MAX_GRADIENT for g in values)
-            and sum(g == 0.0 for g in values) <= MAX_ZERO_GRADIENTS)
+def unusable(gradient: Mapping[str, float], loss: float) -> str | None:
+    """Why one datapoint fails the SPEC §6 rules (None if it passes)."""
+    values = {n: float(gradient[n]) for n in NAMES}
+    if not math.isfinite(loss):
+        return f"its loss is {loss}"
+    bad = {n: g for n, g in values.items() if not (math.isfinite(g) and abs(g) <= MAX_GRADIENT)}
+    if bad:
+        return f"its gradient is not finite or above {MAX_GRADIENT:g} in magnitude: {bad}"
+    zeros = [n for n, g in values.items() if g == 0.0]
+    if len(zeros) > MAX_ZERO_GRADIENTS:
+        return f"its gradient is zero for {zeros} (at most {MAX_ZERO_GRADIENTS} may be)"
+    return None
 
 
 def screen_gradients(gradients: Sequence[Mapping[str, float]], losses: Sequence[float]) -> Screened:
@@ -120,7 +126,7 @@ def screen_gradients(gradients: Sequence[Mapping[str, float]], losses: Sequence[
         if set(gradient) != set(NAMES):
             raise ValueError(f"gradient of datapoint {index} has names {sorted(gradient)}, "
                              f"expected all six {list(NAMES)}")
-    kept = [g for g, loss in zip(gradients, losses) if _usable(g, loss)]
+    kept = [g for g, loss in zip(gradients, losses) if unusable(g, loss) is None]
     skipped = len(gradients) - len(kept)
     if not kept:
         return Screened(None, skipped)
@@ -128,4 +134,4 @@ def screen_gradients(gradients: Sequence[Mapping[str, float]], losses: Sequence[
 
 
 __all__ = ["BETA1", "BETA2", "EPSILON", "MAX_GRADIENT", "MAX_ZERO_GRADIENTS", "Adam", "Screened",
-           "screen_gradients"]
+           "unusable", "screen_gradients"]

@@ -109,6 +109,17 @@ def lame(E: float, nu: float) -> tuple[float, float]:
 HAND_PICKED = Parameters(E=3e4, nu=0.4, rho=1330.0, yield_stress=1e3, mu_table=0.7, mu_effector=0.7)
 """Literature values used as the baseline and as the good initial guess (SPEC §1)."""
 
+
+def at_level(params: Parameters, level: int) -> Parameters:
+    """``params`` as a run of ``level`` holds them: level 1 keeps the frictions at :data:`LEVEL1_FIXED`."""
+    return params.replace(**LEVEL1_FIXED) if level == 1 else params
+
+
+def hand_picked(level: int) -> Parameters:
+    """The literature values as a run of ``level`` starts from them."""
+    return at_level(HAND_PICKED, level)
+
+
 STIFFEST = Parameters(E=UPPER["E"], nu=UPPER["nu"], rho=LOWER["rho"], yield_stress=UPPER["yield_stress"],
                       mu_table=UPPER["mu_table"], mu_effector=UPPER["mu_effector"])
 """The corner of the range with the fastest waves: it sets the worst-case time step."""
@@ -117,6 +128,24 @@ STIFFEST = Parameters(E=UPPER["E"], nu=UPPER["nu"], rho=LOWER["rho"], yield_stre
 def clip(values: dict[str, float]) -> dict[str, float]:
     """Clip each named value into its range."""
     return {k: float(np.clip(v, LOWER[k], UPPER[k])) for k, v in values.items()}
+
+
+def at_bound(values, names=NAMES) -> dict[str, str]:
+    """The parameters among ``names`` whose value in ``values`` (a mapping name → value) lies exactly on a
+    bound of its range (where clipping after an update leaves it), mapped to "lower" or "upper"."""
+    return {n: "lower" if values[n] == LOWER[n] else "upper" for n in names if values[n] in (LOWER[n], UPPER[n])}
+
+
+def check_known(known, level: int) -> None:
+    """``ValueError`` unless the parameters of ``known`` (names → values) are all identified at ``level`` (the
+    others are fixed anyway) and leave at least one to identify."""
+    wrong = sorted(set(known) - set(IDENTIFIED[level]))
+    if wrong:
+        fixed = f" (level 1 holds the frictions at {LEVEL1_FIXED})" if level == 1 else ""
+        raise ValueError(f"known parameter(s) {wrong} are not identified at level {level}{fixed}; known values may "
+                         f"be given for {list(IDENTIFIED[level])}")
+    if set(known) == set(IDENTIFIED[level]):
+        raise ValueError(f"every parameter of level {level} is known: nothing left to identify")
 
 
 def random_initial(seed: int, level: int) -> Parameters:
@@ -131,5 +160,6 @@ def random_initial(seed: int, level: int) -> Parameters:
 
 __all__ = [
     "NAMES", "LOWER", "UPPER", "STEP_SIZE", "IDENTIFIED", "LEVEL1_FIXED", "SCALE_FREE", "scale_free", "UNITS",
-    "Parameters", "lame", "HAND_PICKED", "STIFFEST", "clip", "random_initial",
+    "Parameters", "lame", "HAND_PICKED", "at_level", "hand_picked", "STIFFEST", "clip", "at_bound", "check_known",
+    "random_initial",
 ]

@@ -18,6 +18,7 @@ import open3d as o3d
 import pymeshlab
 
 from dpsi.files import atomic_output, check_points
+from dpsi.shape_files import check_obj, check_pcd, check_ply, check_xyz
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".npy")
 MESH_SUFFIXES = (".obj", ".ply")
@@ -50,79 +51,6 @@ def _existing(path: str | os.PathLike, suffixes: tuple[str, ...], what: str) -> 
     return path
 
 
-_PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
-              "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
-
-
-def _ply_header(path: Path) -> tuple[str, list[tuple[str, int, list[tuple[int, ...]]]], bytes]:
-    """Format, elements (name, count, properties: (size,) for a scalar, (count size, item size) for a
-    list) and the data after the header of a PLY file; ``ValueError`` naming ``path`` if the header is bad."""
-    raw = path.read_bytes()
-    end = raw.find(b"end_header")
-    newline = raw.find(b"\n", end)
-    if not raw.startswith(b"ply") or end < 0 or newline < 0:
-        raise ValueError(f"{path}: not a PLY file (no 'ply' … 'end_header' header)")
-    fmt, elements = "", []
-    try:
-        for line in raw[:end].decode("ascii").splitlines():
-            words = line.split()
-            if words[:1] == ["format"]:
-                fmt = words[1]
-            elif words[:1] == ["element"]:
-                elements.append((words[1], int(words[2]), []))
-            elif words[:2] == ["property", "list"]:
-                elements[-1][2].append((_PLY_SIZES[words[2]], _PLY_SIZES[words[3]]))
-            elif words[:1] == ["property"]:
-                elements[-1][2].append((_PLY_SIZES[words[1]],))
-    except (UnicodeDecodeError, IndexError, KeyError, ValueError) as e:
-        raise ValueError(f"{path}: malformed PLY header ({type(e).__name__}: {e})") from None
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise ValueError(f"{path}: unknown PLY format {fmt!r}")
-    return fmt, elements, raw[newline + 1:]
-
-
-def _binary_rows_end(data: bytes, start: int, count: int, properties, byteorder: str) -> int:
-    """Offset just past ``count`` binary rows of ``properties`` starting at ``start`` (beyond the data
-    if it is too short)."""
-    offset = start
-    for _ in range(count):
-        for prop in properties:
-            if offset > len(data):
-                return offset
-            if len(prop) == 1:
-                offset += prop[0]
-            else:
-                n = int.from_bytes(data[offset:offset + prop[0]], byteorder)
-                offset += prop[0] + n * prop[1]
-    return offset
-
-
-def check_ply(path: str | os.PathLike) -> dict[str, int]:
-    """The element counts of a PLY file (e.g. ``{"vertex": n, "face": m}``) after checking that its data
-    holds everything its header declares; ``ValueError`` naming the file if it is truncated."""
-    path = Path(path)
-    fmt, elements, data = _ply_header(path)
-    declared = {name: count for name, count, _ in elements}
-    if fmt == "ascii":
-        rows = sum(1 for line in data.splitlines() if line.strip())
-        needed = sum(declared.values())
-        if rows < needed:
-            raise ValueError(f"{path}: truncated PLY file: the header declares {needed} rows "
-                             f"({declared}) but the file holds {rows}; export it again")
-        return declared
-    byteorder = "little" if fmt == "binary_little_endian" else "big"
-    offset = 0
-    for name, count, properties in elements:
-        if all(len(p) == 1 for p in properties):
-            offset += count * sum(p[0] for p in properties)
-        else:
-            offset = _binary_rows_end(data, offset, count, properties, byteorder)
-        if offset > len(data):
-            raise ValueError(f"{path}: truncated PLY file: the header declares {count} {name} rows, which need "
-                             f"more than the {len(data)} bytes of data the file holds; export it again")
-    return declared
-
-
 def _load_npy(path: Path, what: str) -> np.ndarray:
     """The numeric array in a .npy file (never unpickled); ``ValueError`` naming the file otherwise."""
     try:
@@ -141,8 +69,7 @@ def read_points(path: str | os.PathLike) -> np.ndarray:
     if path.suffix.lower() == ".npy":
         a = _load_npy(path, "(n, 3) points")
     else:
-        if path.suffix.lower() == ".ply":
-            check_ply(path)
+        {".ply": check_ply, ".pcd": check_pcd, ".xyz": check_xyz}[path.suffix.lower()](path)
         a = np.asarray(o3d.io.read_point_cloud(str(path)).points)
         if len(a) == 0:
             raise ValueError(f"{path}: no points could be read (file is empty or malformed)")
@@ -165,38 +92,24 @@ def write_points(path: str | os.PathLike, points) -> None:
                 raise OSError(f"{path}: Open3D failed to write the point cloud")
 
 
-def _check_obj_vertices(path: Path) -> int:
-    """The number of vertices (``v`` lines) of an OBJ file; ``ValueError`` naming the file and line of a
-    vertex that is not three finite numbers (a mesh reader would drop it and shift the faces)."""
-    count = 0
-    with open(path, errors="replace") as f:
-        for number, line in enumerate(f, start=1):
-            words = line.split()
-            if words[:1] != ["v"]:
-                continue
-            try:
-                xyz = [float(w) for w in words[1:4]]
-            except ValueError:
-                xyz = []
-            if len(xyz) != 3 or not np.isfinite(xyz).all():
-                raise ValueError(f"{path}, line {number}: vertex {' '.join(words[1:4])!r} is not three finite "
-                                 "numbers (m); fix the vertex and export the mesh again")
-            count += 1
-    return count
-
-
 def read_mesh(path: str | os.PathLike) -> o3d.geometry.TriangleMesh:
     """Triangle mesh (vertices in m) from an OBJ or PLY file, vertices kept exactly as stored (read with
     PyMeshLab: Open3D's OBJ reader merges coincident vertices, which can break a closed mesh's
-    topology); ``ValueError`` if it cannot be read, has no triangles or non-finite vertices."""
+    topology); ``ValueError`` if it cannot be read, is truncated, has a face index outside its vertices
+    (checked first: PyMeshLab can crash on one), has no triangles or non-finite vertices."""
     path = _existing(path, MESH_SUFFIXES, "mesh")
-    declared = check_ply(path).get("vertex", 0) if path.suffix.lower() == ".ply" else _check_obj_vertices(path)
+    counts = check_ply(path) if path.suffix.lower() == ".ply" else {"vertex": check_obj(path)}
+    declared = counts.get("vertex", 0)
     ms = pymeshlab.MeshSet()
     try:
         ms.load_new_mesh(str(path))
     except pymeshlab.PyMeshLabException as e:
         raise ValueError(f"{path}: not a readable mesh ({str(e).strip()})") from None
     vertices, faces = ms.current_mesh().vertex_matrix(), ms.current_mesh().face_matrix()
+    if len(faces) == 0 and counts.get("face", 0) > 0:
+        raise ValueError(f"{path}: the header declares {counts['face']} faces but PyMeshLab read none (it drops "
+                         "faces whose 'flags' property marks them deleted); export the mesh with only vertex_indices "
+                         "on its faces")
     if len(faces) == 0:
         raise ValueError(f"{path}: no triangles could be read (file is empty, malformed or a point cloud)")
     if not np.isfinite(vertices).all() or len(vertices) != declared:

@@ -201,7 +201,7 @@ def save_targets(path: str | os.PathLike, targets: AfterTargets) -> None:
 
 def load_targets(path: str | os.PathLike) -> AfterTargets:
     """Read a file written by :func:`save_targets`."""
-    meta, arrays = load_arrays(path, _TARGET_ARRAYS, "after-state targets")
+    meta, arrays = load_arrays(path, _TARGET_ARRAYS, "after-state targets", "targets")
     return AfterTargets(**{k: a.astype(float) for k, a in arrays.items()}, table_z=float(meta["table_z"]))
 
 
@@ -213,7 +213,7 @@ def save_trajectory(path: str | os.PathLike, trajectory: Trajectory, start) -> N
 
 def load_trajectory(path: str | os.PathLike) -> tuple[Trajectory, np.ndarray]:
     """Read a file written by :func:`save_trajectory`: (trajectory, start (3,) in m)."""
-    meta, a = load_arrays(path, _TRAJECTORY_ARRAYS, "trajectory")
+    meta, a = load_arrays(path, _TRAJECTORY_ARRAYS, "trajectory", "trajectory")
     return Trajectory(a["positions"], a["yaw"], float(meta["dt"])), a["start"].astype(float)
 
 

@@ -18,7 +18,6 @@ the reconstruction at the matching stage (fusion, meshing, or filling).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import re
@@ -28,10 +27,9 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import yaml
 
+from dpsi.dataset_yaml import EFFECTOR_KINDS, DatasetYamlError, EffectorSpec, read_dataset_yaml
 from dpsi.datapoints_table import COLUMNS, TableError, read_table
-from dpsi.effectors import BUILT_IN, Effector, by_name, effector_from_mesh
 from dpsi.motions import read_waypoints
 from dpsi.pointclouds import (CLOUD_SUFFIXES, MESH_SUFFIXES, TRANSFORM_SUFFIXES, View, atomic_output,
                               check_points, check_rigid, read_mesh, read_points, read_transform, write_points,
@@ -40,7 +38,6 @@ from dpsi.reconstruction.meshing import is_watertight
 from dpsi.reconstruction.repair import repair_scan
 
 STATES = ("before", "after")
-EFFECTOR_KINDS = tuple(BUILT_IN)
 _VIEW = re.compile(r"^view_(\d+)$")
 
 
@@ -68,22 +65,6 @@ class StateSource:
     def measured(self) -> bool:
         """Whether the state's surface points come from cameras (with their depth noise), not from a mesh."""
         return self.form != "mesh"
-
-
-@dataclass(frozen=True)
-class EffectorSpec:
-    """An effector of the dataset: a built-in ``kind`` (rectangle/round/cylinder) or a mesh file ``obj``."""
-
-    name: str
-    kind: str | None = None
-    obj: Path | None = None
-
-    def effector(self) -> Effector:
-        """The shape: the built-in one of ``kind`` under this name, or ``obj`` sampled into a signed-distance
-        grid (tip at the mesh's origin)."""
-        if self.obj is not None:
-            return effector_from_mesh(self.obj, self.name)
-        return dataclasses.replace(by_name(self.kind), name=self.name)
 
 
 @dataclass(frozen=True)
@@ -137,52 +118,22 @@ def read_closed_mesh(path: str | os.PathLike):
 
 
 def read_dataset_config(root: str | os.PathLike) -> tuple[float, tuple | None, dict[str, EffectorSpec]]:
-    """``root/dataset.yaml`` validated: table height (m), workspace box (lo, hi) in m or ``None``, and the
-    effectors by name (the built-ins and the dataset's own)."""
-    root = Path(root)
-    path = root / "dataset.yaml"
-    effectors = {name: EffectorSpec(name, kind=name) for name in EFFECTOR_KINDS}
-    if not path.exists():
-        return 0.0, None, effectors
+    """``root/dataset.yaml`` validated (:func:`~dpsi.dataset_yaml.read_dataset_yaml`, and each effector mesh
+    read): table height (m), workspace box (lo, hi) in m or ``None``, and the effectors by name (the
+    built-ins and the dataset's own)."""
     try:
-        cfg = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as e:
-        _fail(path, f"not valid YAML ({e})")
-    if not isinstance(cfg, dict):
-        _fail(path, "must be a mapping with keys table_z, workspace, effectors")
-    unknown = set(cfg) - {"table_z", "workspace", "effectors"}
-    if unknown:
-        _fail(path, f"unknown key(s) {sorted(unknown)}; allowed: table_z, workspace, effectors")
-    table_z = cfg.get("table_z", 0.0)
-    if not isinstance(table_z, (int, float)) or not np.isfinite(table_z):
-        _fail(path, f"table_z must be a number in m, not {table_z!r}")
-    workspace = None
-    if "workspace" in cfg:
-        ws = cfg["workspace"]
-        try:
-            lo, hi = np.asarray(ws["lo"], float), np.asarray(ws["hi"], float)
-        except (TypeError, KeyError, ValueError):
-            _fail(path, "workspace must be {lo: [x, y, z], hi: [x, y, z]} in m")
-        if lo.shape != (3,) or hi.shape != (3,) or not (lo < hi).all():
-            _fail(path, f"workspace lo {lo.tolist()} must be below hi {hi.tolist()} in x, y and z")
-        workspace = (lo, hi)
-    for name, spec in (cfg.get("effectors") or {}).items():
-        if not isinstance(spec, dict) or len(spec) != 1 or not {"kind", "obj"} & set(spec):
-            _fail(path, f"effector {name!r} needs exactly one of kind: {list(EFFECTOR_KINDS)} or obj: <file>")
-        if "kind" in spec:
-            if spec["kind"] not in EFFECTOR_KINDS:
-                _fail(path, f"effector {name!r} has unknown kind {spec['kind']!r}; use {list(EFFECTOR_KINDS)}")
-            effectors[name] = EffectorSpec(name, kind=spec["kind"])
-        else:
-            obj = root / spec["obj"]
+        layout = read_dataset_yaml(root)
+    except DatasetYamlError as e:
+        raise RawDataError(str(e)) from None
+    for name, spec in layout.effectors.items():
+        if spec.obj is not None:
             try:
-                mesh = read_mesh(obj)
+                mesh = read_mesh(spec.obj)
             except (OSError, ValueError) as e:
-                _fail(path, f"effector {name!r}: {e}")
+                _fail(Path(root) / "dataset.yaml", f"effector {name!r}: {e}")
             if not is_watertight(mesh):
-                _fail(obj, f"effector {name!r} mesh is not watertight")
-            effectors[name] = EffectorSpec(name, obj=obj)
-    return float(table_z), workspace, effectors
+                _fail(spec.obj, f"effector {name!r} mesh is not watertight")
+    return layout.table_z, layout.workspace, layout.effectors
 
 
 def _read_table(root: Path, effectors: dict[str, EffectorSpec]) -> pd.DataFrame:

@@ -36,7 +36,7 @@ import yaml
 from dpsi.capture import capture
 from dpsi.effectors import by_name
 from dpsi.heightmap import height_map
-from dpsi.motions import get_motion, plan, resample, write_waypoints
+from dpsi.motions import Trajectory, get_motion, plan, resample, write_waypoints
 from dpsi.parameters import Parameters
 from dpsi.files import atomic_output, load_arrays, save_arrays
 from dpsi.prepare import surface_points
@@ -66,13 +66,40 @@ FINE_DENSITY = 1.5e8
 GROUND_TRUTH_FILE = "truth.npz"
 
 
+@dataclass(frozen=True)
+class MotionError:
+    """How far a twin's simulated motion strays from the path it records, as a robot's calibration error
+    would: each datapoint's tool path is moved by a random translation, uniform within ±``translation`` m
+    on each axis, and turned about its start by a random yaw within ±``yaw`` rad. Zero by default."""
+
+    translation: float = 0.0
+    yaw: float = 0.0
+
+    def draw(self, seed: int) -> tuple[np.ndarray, float]:
+        """The (translation (3,) in m, yaw in rad) of one datapoint, from ``seed``; zero if there is no error."""
+        if self.translation == 0.0 and self.yaw == 0.0:
+            return np.zeros(3), 0.0
+        rng = np.random.default_rng(seed)
+        return rng.uniform(-self.translation, self.translation, 3), float(rng.uniform(-self.yaw, self.yaw))
+
+
+def turned_about_start(trajectory: Trajectory, yaw: float) -> Trajectory:
+    """``trajectory`` turned about its start by ``yaw`` rad (positions rotated about z, yaw added)."""
+    if yaw == 0.0:
+        return trajectory
+    c, s = np.cos(yaw), np.sin(yaw)
+    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return Trajectory(trajectory.positions @ rotation.T, trajectory.yaw + yaw, trajectory.dt)
+
+
 def write_twin_table(root: str | os.PathLike, plan: Plan | None = None, seed: int = 0,
                      materials: dict[str, Parameters] | None = None, config: SimulatorConfig = FINE_CONFIG,
-                     density: float = FINE_DENSITY) -> list[dict]:
+                     density: float = FINE_DENSITY, motion_error: MotionError | None = None) -> list[dict]:
     """Write ``datapoints.csv``, ``dataset.yaml`` and ``truth.json`` of a twin under ``root`` (created).
 
     ``plan`` defaults to :func:`default_plan`, ``materials`` (ground truth by name) to :data:`MATERIALS`;
-    ``config`` and ``density`` (particles/m³) set the twin's simulation. Returns the table rows."""
+    ``config`` and ``density`` (particles/m³) set the twin's simulation, ``motion_error`` how far the
+    simulated motion strays from the recorded one (none by default). Returns the table rows."""
     root = Path(root)
     rows = plan_rows(default_plan() if plan is None else plan)
     materials = MATERIALS if materials is None else materials
@@ -88,20 +115,22 @@ def write_twin_table(root: str | os.PathLike, plan: Plan | None = None, seed: in
         tmp.write_text(yaml.safe_dump({"table_z": TABLE_Z, "workspace": {"lo": list(lo), "hi": list(hi)}}))
     truth = {"seed": int(seed), "density": float(density), "simulator": asdict(config),
              "materials": {m: materials[m].as_dict() for m in used}}
+    if motion_error is not None:
+        truth["motion_error"] = asdict(motion_error)
     with atomic_output(root / TRUTH_FILE) as tmp:
         tmp.write_text(json.dumps(truth, indent=2))
     return rows
 
 
-def read_truth(root: str | os.PathLike) -> tuple[dict[str, Parameters], int, SimulatorConfig, float]:
+def read_truth(root: str | os.PathLike) -> tuple[dict[str, Parameters], int, SimulatorConfig, float, MotionError]:
     """Ground truth and generator settings of a twin: (parameters by material, seed, simulator config,
-    density in particles/m³), from ``root/truth.json`` (:func:`dpsi.twin_plan.load_truth`)."""
+    density in particles/m³, motion error), from ``root/truth.json`` (:func:`dpsi.twin_plan.load_truth`)."""
     truth = load_truth(root)
     try:
         config = SimulatorConfig(**truth["simulator"])
     except (TypeError, ValueError) as e:
         raise ValueError(f"{Path(root) / TRUTH_FILE}: bad simulator settings ({e})") from None
-    return truth["materials"], truth["seed"], config, truth["density"]
+    return truth["materials"], truth["seed"], config, truth["density"], MotionError(**truth["motion_error"])
 
 
 @functools.cache
@@ -126,6 +155,10 @@ class GroundTruth:
     after_particles: np.ndarray
     centre_xy: np.ndarray
     heightmap: np.ndarray
+    motion_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """How far (m) the simulated tool path was moved from the recorded one."""
+    motion_yaw: float = 0.0
+    """How far (rad) the simulated tool path was turned about its start from the recorded one."""
 
 
 _GROUND_TRUTH_ARRAYS = ("before_particles", "after_particles", "centre_xy", "heightmap")
@@ -134,14 +167,16 @@ _GROUND_TRUTH_ARRAYS = ("before_particles", "after_particles", "centre_xy", "hei
 def write_ground_truth(path: str | os.PathLike, truth: GroundTruth) -> None:
     """Write ``truth`` to ``path`` (.npz) atomically."""
     meta = {"id": truth.id, "material": truth.material, "parameters": truth.parameters.as_dict(),
-            "particle_volume": truth.particle_volume, "table_z": truth.table_z}
+            "particle_volume": truth.particle_volume, "table_z": truth.table_z,
+            "motion_offset": list(truth.motion_offset), "motion_yaw": truth.motion_yaw}
     save_arrays(path, meta, {k: getattr(truth, k) for k in _GROUND_TRUTH_ARRAYS})
 
 
 def load_ground_truth(path: str | os.PathLike) -> GroundTruth:
     """Read a ground truth written by :func:`write_ground_truth`; errors name the file."""
-    meta, arrays = load_arrays(path, _GROUND_TRUTH_ARRAYS, "twin ground-truth")
+    meta, arrays = load_arrays(path, _GROUND_TRUTH_ARRAYS, "twin ground-truth", "twin_datapoint")
     meta["parameters"] = Parameters.checked(**meta["parameters"])
+    meta["motion_offset"] = tuple(meta.get("motion_offset", (0.0, 0.0, 0.0)))
     return GroundTruth(**meta, **{k: a.astype(float) for k, a in arrays.items()})
 
 
@@ -174,9 +209,9 @@ def generate_datapoint(root: str | os.PathLike, datapoint_id: str) -> Path:
     and renamed at the end, so it is either complete or absent."""
     root = Path(root)
     row = _row(root, datapoint_id)
-    materials, seed, config, density = read_truth(root)
-    shape_seed, plan_seed, before_seed, after_seed, jitter_seed = np.random.SeedSequence(
-        [seed, zlib.crc32(datapoint_id.encode())]).generate_state(5)
+    materials, seed, config, density, motion_error = read_truth(root)
+    shape_seed, plan_seed, before_seed, after_seed, jitter_seed, error_seed = np.random.SeedSequence(
+        [seed, zlib.crc32(datapoint_id.encode())]).generate_state(6)
 
     offset = np.random.default_rng(jitter_seed).uniform(-CENTRE_JITTER, CENTRE_JITTER, 2)
     particles = fill(random_lump(int(shape_seed), np.asarray(CENTRE) + offset, TABLE_Z), density)
@@ -184,13 +219,15 @@ def generate_datapoint(root: str | os.PathLike, datapoint_id: str) -> Path:
     before = true_surface(particles, spacing, name=f"{datapoint_id} before")
     lo, hi = before.get_min_bound(), before.get_max_bound()
     waypoints = plan(get_motion(row.motion), int(plan_seed), start_xyz=[*(lo[:2] + hi[:2]) / 2, hi[2]])
-    scene = Scene(particles, 1.0 / density, by_name(row.effector), resample(waypoints), waypoints.xyz[0], TABLE_Z)
+    moved, turned = motion_error.draw(int(error_seed))
+    scene = Scene(particles, 1.0 / density, by_name(row.effector), turned_about_start(resample(waypoints), turned),
+                  waypoints.xyz[0] + moved, TABLE_Z)
     final = simulator(config).forward(scene, materials[row.material], keep_substeps=False)
     after = true_surface(final, spacing, name=f"{datapoint_id} after")
     centre_xy = scene.centre_xy
     truth = GroundTruth(datapoint_id, row.material, materials[row.material], 1.0 / density, TABLE_Z,
                         particles, final, centre_xy,
-                        height_map(surface_points(after), centre_xy, floor=TABLE_Z))
+                        height_map(surface_points(after), centre_xy, floor=TABLE_Z), tuple(moved), turned)
 
     folder = root / datapoint_id
     tmp = root / f".{datapoint_id}.tmp"
@@ -223,5 +260,5 @@ def generate_twin(root: str | os.PathLike, plan: Plan | None = None, seed: int =
 
 
 __all__ = ["CENTRE", "CENTRE_JITTER", "TABLE_Z", "WORKSPACE", "FINE_CONFIG", "FINE_DENSITY",
-           "GROUND_TRUTH_FILE", "write_twin_table", "read_truth", "simulator", "true_surface", "GroundTruth", "write_ground_truth",
+           "GROUND_TRUTH_FILE", "MotionError", "turned_about_start", "write_twin_table", "read_truth", "simulator", "true_surface", "GroundTruth", "write_ground_truth",
            "load_ground_truth", "generate_datapoint", "generate_twin"]

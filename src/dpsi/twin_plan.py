@@ -113,7 +113,8 @@ def plan_rows(plan: Plan) -> list[dict]:
 
 def load_truth(root: str | os.PathLike) -> dict:
     """A twin's ``root/truth.json``: ``materials`` (:class:`Parameters` by material), ``seed``,
-    ``simulator`` (settings of the twin's simulator) and ``density`` (particles/m³)."""
+    ``simulator`` (settings of the twin's simulator), ``density`` (particles/m³) and ``motion_error`` (the
+    settings of :class:`dpsi.twin.MotionError`; empty for none)."""
     path = Path(root) / TRUTH_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{path}: twin truth file not found; run write_twin_table first")
@@ -121,7 +122,8 @@ def load_truth(root: str | os.PathLike) -> dict:
         truth = json.loads(path.read_text())
         return {"materials": {m: Parameters.checked(**v) for m, v in truth["materials"].items()},
                 "seed": int(truth["seed"]), "simulator": dict(truth["simulator"]),
-                "density": float(truth["density"])}
+                "density": float(truth["density"]),
+                "motion_error": {k: float(v) for k, v in truth.get("motion_error", {}).items()}}
     except (json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
         raise ValueError(f"{path}: not a twin truth file ({e})") from None
 

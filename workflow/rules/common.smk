@@ -5,18 +5,22 @@ library is imported here (no Taichi, Open3D or PyMeshLab), so that parsing the w
 import ast
 import functools
 import itertools
+import math
+import os
 import re
 from pathlib import Path
 
 import pandas as pd
-import yaml
 from snakemake.exceptions import WorkflowError
 from snakemake.logging import logger
 from snakemake.utils import validate
 
 from dpsi import datasets as dpsi_datasets
-from dpsi import twin_plan
+from dpsi import release_plan, twin_plan
+from dpsi.dataset_yaml import DatasetYamlError, read_dataset_yaml
 from dpsi.datapoints_table import TableError, check_table, read_table
+from dpsi.motions import MOTIONS
+from dpsi.parameters import check_known
 
 validate(config, "../schemas/config.schema.yaml")
 
@@ -41,16 +45,27 @@ OUT = inside_project("results")
 """Output root of this configuration."""
 TWIN = "twin" in config and config["twin"]["name"] == config["dataset"]
 """Whether the dataset is the synthetic twin of the config (generated), rather than a user's raw data."""
+RELEASE = "release" in config and config["release"]["name"] == config["dataset"]
+"""Whether the dataset is imported from the published real data (dpsi.release)."""
+if TWIN and RELEASE:
+    raise WorkflowError(
+        f"config: `twin` and `release` are both named {config['dataset']!r}; give them different names"
+    )
 RESULTS = f"{OUT}/{config['dataset']}"
 """Everything made from this dataset: prepared data, runs, tables, figures and logs."""
-RAW = f"{RESULTS}/raw" if TWIN else f"raw/{config['dataset']}"
-"""The raw dataset: the twin writes its own under the results, a user's under raw/ is only read."""
+RAW = f"{RESULTS}/raw" if TWIN or RELEASE else f"raw/{config['dataset']}"
+"""The raw dataset: the twin and the import write theirs under the results; a user's under raw/ is only read."""
 TABLES_DIR = f"{RESULTS}/tables"
 FIGURES_DIR = f"{RESULTS}/figures"
 LOGS = f"{RESULTS}/logs"
 SCRIPTS = Path(workflow.main_snakefile).parent / "workflow" / "scripts"
-GPU = 1 if config.get("taichi_arch") == "cuda" else 0
-"""GPUs a simulating job asks for."""
+GPU_GRES = (
+    f"{os.environ.get('DPSI_GPU_GRES', 'gpu')}:1"
+    if config.get("taichi_arch") == "cuda"
+    else None
+)
+"""The GPU a simulating job asks for, as a generic resource (SLURM's --gres): one `gpu`, or one of the
+name in the environment variable DPSI_GPU_GRES (such as gpu:a100); none (None) on the CPU."""
 
 
 def _module_file(name):
@@ -127,14 +142,42 @@ def figure_files(name, caption):
     return [png, f"{path}.pdf"]
 
 
+@functools.cache
+def released_pairs():
+    """The datapoints of the published real data that the config's `release` section imports, each with its
+    pair of mesh files; refused at start-up naming the source if there are none."""
+    try:
+        return release_plan.plan_rows(
+            config["release"]["source"],
+            release_plan.ImportTables.from_config(config["release"]),
+        )
+    except release_plan.ReleaseError as err:
+        raise WorkflowError(f"config `release`: {err}")
+
+
+def raw_layout():
+    """The raw dataset's dataset.yaml, checked at parse time (a file it names must exist before a rule
+    depends on it). The twin writes its own: until then, the defaults."""
+    try:
+        return read_dataset_yaml(RAW)
+    except DatasetYamlError as err:
+        raise WorkflowError(f"{err} (docs/raw-format.md)")
+
+
+LAYOUT = raw_layout()
+
+
 def datapoints_table():
     """The datapoints table: planned by the twin config, or read from the raw dataset; checked at parse
-    time (ids become file names, so an unsafe id must never reach a rule)."""
+    time (ids become file names, so an unsafe id must never reach a rule; each motion with its effector).
+    """
     if TWIN:
         plan = twin_plan.plan_from_config(config["twin"]["groups"])
         table = pd.DataFrame(twin_plan.plan_rows(plan))
         check_table(table.astype(str), "the twin's plan")
         return table
+    if RELEASE:
+        return pd.DataFrame([row for row, _ in released_pairs()])
     path = Path(RAW) / "datapoints.csv"
     if not path.is_file():
         raise WorkflowError(
@@ -142,7 +185,7 @@ def datapoints_table():
             "the name of the config's `twin` to generate a synthetic one"
         )
     try:
-        return read_table(path)
+        return read_table(path, LAYOUT.kinds())
     except TableError as err:
         raise WorkflowError(f"{err} (docs/raw-format.md)")
 
@@ -156,16 +199,45 @@ def training_ids(level, dataset):
     return dpsi_datasets.select(TABLE, int(level), dataset)
 
 
-def validation_ids(level):
-    return dpsi_datasets.validation(TABLE, int(level))
+def validation_ids(level, dataset):
+    """The validation datapoints of a run on ``dataset``: the level's validation ones, or those of its
+    train datapoints the dataset leaves out (see dpsi.datasets.validation)."""
+    return dpsi_datasets.validation(
+        TABLE, int(level), training=training_ids(level, dataset)
+    )
+
+
+def datasets_at(level, names):
+    """The datasets ``names`` at ``level``, `pairs` expanded to one dataset per train datapoint."""
+    return dpsi_datasets.expand_names(TABLE, int(level), names)
+
+
+def run_datasets(level):
+    """The main sweep's datasets at ``level``."""
+    return datasets_at(level, IDENT["datasets"])
+
+
+def unseen_ids(level, dataset):
+    """The clay datapoints (either level) a run on ``dataset`` did not train on."""
+    return dpsi_datasets.unseen(TABLE, training_ids(level, dataset))
 
 
 def ood_ids():
     return dpsi_datasets.ood(TABLE)
 
 
+OFFSETS = IDENT.get("motion_offsets", False)
+"""Whether each datapoint's motion offset is registered from its dent before it is used (dpsi.motion_offsets)."""
+
+
 def prepared(ids):
-    return [f"{RESULTS}/prepared/{i}.npz" for i in ids]
+    """The datapoints ``ids`` as the sweep uses them: prepared, and registered if `motion_offsets` is on."""
+    return [f"{RESULTS}/{'registered' if OFFSETS else 'prepared'}/{i}.npz" for i in ids]
+
+
+def level_of(datapoint):
+    """The level of a datapoint in the table."""
+    return int(TABLE.set_index("id").loc[datapoint, "level"])
 
 
 MAIN_RUN = f"{RESULTS}/runs/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
@@ -174,13 +246,37 @@ MAIN_RUN = f"{RESULTS}/runs/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
 
 def runs(level=None, name="summary.json"):
     """``name`` (summary.json or log.csv) of every identification run (of one level if given)."""
-    return expand(
-        f"{MAIN_RUN}/{name}",
-        level=[level] if level else IDENT["levels"],
-        loss=IDENT["losses"],
-        dataset=IDENT["datasets"],
-        seed=IDENT["seeds"],
+    return [
+        path
+        for each in ([level] if level else IDENT["levels"])
+        for path in expand(
+            f"{MAIN_RUN}/{name}",
+            level=each,
+            loss=IDENT["losses"],
+            dataset=run_datasets(each),
+            seed=IDENT["seeds"],
+        )
+    ]
+
+
+def baselines():
+    """The baseline record of every (level, datapoint) that a run of the sweep validates on or did not see."""
+    return sorted(
+        {
+            f"{RESULTS}/baselines/L{level}/{i}.json"
+            for level in IDENT["levels"]
+            for dataset in run_datasets(level)
+            for i in validation_ids(level, dataset) + unseen_ids(level, dataset)
+        }
     )
+
+
+def run_minutes(ids, iterations):
+    """Time limit (min) of an identification run on the datapoints ``ids`` (training and validation): ten for
+    start-up and a minute per 100 simulated steps of each datapoint at every iteration, about three times
+    a poking-shifting pass at 5 mm on one core (docs/benchmarks.md)."""
+    steps = sum(MOTIONS[m].sim_steps for m in TABLE.set_index("id").motion[list(ids)])
+    return 10 + math.ceil(iterations * steps / 100)
 
 
 def simulator_params():
@@ -197,11 +293,12 @@ def simulator_params():
 def for_each_run():
     """Fail at start-up, naming the datapoints, if a configured dataset cannot be formed."""
     for level in IDENT["levels"]:
-        validation_ids(level)
-        for dataset in IDENT["datasets"]:
-            training_ids(level, dataset)
-    if 2 in IDENT["levels"]:
-        ood_ids()
+        for dataset in run_datasets(level):
+            validation_ids(level, dataset)
+            if not re.fullmatch("[0-9a-z-]+", dataset):
+                raise ValueError(
+                    f"dataset {dataset!r}: ids of datasets may hold only lower-case letters, digits and '-'"
+                )
 
 
 try:
@@ -212,9 +309,35 @@ except ValueError as err:
     )
 
 
-OOD = 2 in IDENT["levels"]
+def check_known_parameters():
+    """Fail at start-up, naming the config key, if parameters held known are not identified at a level
+    of the runs they are given for."""
+    ladder = ANALYSES.get("identifiability", {})
+    for key, known, levels in [
+        ("identification.known", IDENT.get("known", {}), IDENT["levels"]),
+        (
+            "analyses.identifiability.known",
+            ladder.get("known", {}),
+            ladder.get("levels", []),
+        ),
+    ]:
+        for level in levels:
+            try:
+                check_known(known, level)
+            except ValueError as err:
+                raise WorkflowError(f"config key {key}: {err}")
+
+
+OOD = 2 in IDENT["levels"] and (TABLE.role == "ood").any()
 """Whether the out-of-distribution evaluation runs (it uses the level-2 parameters)."""
-TABLES = ["motions", "parameters", "best_params", "ood_heightmap", "recovery_error"]
+TABLES = [
+    "motions",
+    "parameters",
+    "best_params",
+    "generalisation",
+    "ood_heightmap",
+    "recovery_error",
+]
 UNCERTAINTY = IDENT.get("uncertainty", False)
 """Whether the main sweep's runs measure what their data determine (dpsi.uncertainty): uncertainty.csv and figure."""
 if UNCERTAINTY:
@@ -222,7 +345,7 @@ if UNCERTAINTY:
 OOD_SOURCES = [f"{RESULTS}/ood/hand-picked.json"] + expand(
     f"{RESULTS}/ood/{{loss}}/{{dataset}}.json",
     loss=IDENT["losses"],
-    dataset=IDENT["datasets"],
+    dataset=run_datasets(2) if OOD else [],
 )
 
 
@@ -234,6 +357,7 @@ def twin_settings():
         "dx": twin["dx"],
         "max_particles": twin.get("max_particles", 22000),
         "groups": [dict(sorted(group.items())) for group in twin["groups"]],
+        "motion_error": dict(sorted(twin.get("motion_error", {}).items())),
     }
 
 
@@ -243,14 +367,9 @@ def raw_config_files():
     files = [f"{RAW}/datapoints.csv"]
     if TWIN or layout.is_file():
         files.append(str(layout))
-    if layout.is_file():
-        effectors = (yaml.safe_load(layout.read_text()) or {}).get("effectors") or {}
-        files += [
-            f"{RAW}/{e['obj']}"
-            for e in effectors.values()
-            if isinstance(e, dict) and "obj" in e
-        ]
-    return files
+    return files + [
+        str(spec.obj) for spec in LAYOUT.effectors.values() if spec.obj is not None
+    ]
 
 
 def raw_datapoint(wildcards):
@@ -299,6 +418,7 @@ if set(config.get("analyses", {})) - set(ANALYSES):
 ANALYSIS_TABLES = []
 ANALYSIS_FIGURES = []
 """Outputs of the analyses in the config; each analysis rule file adds its own, reporting.smk collects them."""
+check_known_parameters()
 
 
 def parameter_source_inputs(source):

@@ -25,7 +25,7 @@ if "convergence" in ANALYSES:
         resources:
             mem_mb=16000 if min(CONVERGENCE["dx_mm"]) < 3 else 4000,
             runtime=CONVERGENCE_MINUTES,
-            gpu=GPU,
+            gres=GPU_GRES,
             timing=1,
         params:
             motions=CONVERGENCE["motions"],

@@ -28,7 +28,7 @@ if "cost" in ANALYSES:
         resources:
             mem_mb=4000,
             runtime=30 + 5 * COST["measured_iterations"],
-            gpu=GPU,
+            gres=GPU_GRES,
             timing=1,
         params:
             measured_iterations=COST["measured_iterations"],

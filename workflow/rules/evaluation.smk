@@ -23,7 +23,7 @@ rule ood_identified:
     resources:
         mem_mb=3000,
         runtime=120,
-        gpu=GPU,
+        gres=GPU_GRES,
     params:
         simulator=simulator_params(),
     script:

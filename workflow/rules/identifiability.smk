@@ -29,7 +29,7 @@ if "identifiability" in ANALYSES:
         resources:
             mem_mb=2000,
             runtime=10,
-            gpu=GPU,
+            gres=GPU_GRES,
         params:
             material=lambda w: TABLE.set_index("id").loc[w.id, "material"],
             simulator=simulator_params(),
@@ -41,10 +41,12 @@ if "identifiability" in ANALYSES:
             truth=truth_file(),
             code=code("ladder_reconstructed_twin"),
         output:
-            prepared=f"{LADDER_ROOT}/R1/prepared/{{id}}.npz",
-            raw=directory(f"{LADDER_ROOT}/R1/raw/{{id}}"),
+            prepared=f"{LADDER_ROOT}/{{rung}}/prepared/{{id}}.npz",
+            raw=directory(f"{LADDER_ROOT}/{{rung}}/raw/{{id}}"),
         log:
-            log_file("identifiability/R1_{id}"),
+            log_file("identifiability/{rung}_{id}"),
+        wildcard_constraints:
+            rung="R1|R1m",
         conda:
             "../envs/dpsi.yaml"
         threads: 1
@@ -55,8 +57,21 @@ if "identifiability" in ANALYSES:
             twin=twin_settings(),
             simulator=simulator_params(),
             density=config["reconstruction"]["density"],
+            motion_error=lambda w: (
+                LADDER.get("motion_error", {}) if w.rung == "R1m" else {}
+            ),
         script:
             "../scripts/ladder_reconstructed_twin.py"
+
+    use rule register as register_ladder with:
+        input:
+            datapoint=f"{LADDER_ROOT}/R1m/prepared/{{id}}.npz",
+            code=code("register"),
+        output:
+            datapoint=f"{LADDER_ROOT}/R1r/prepared/{{id}}.npz",
+            record=f"{LADDER_ROOT}/R1r/prepared/{{id}}.json",
+        log:
+            log_file("identifiability/R1r_{id}"),
 
     use rule identify as identify_ladder with:
         input:
@@ -74,7 +89,15 @@ if "identifiability" in ANALYSES:
         log:
             log_file("identifiability/{rung}_L{level}_{loss}_{dataset}_seed{seed}"),
         wildcard_constraints:
-            rung="R[0-2]",
+            rung="|".join(RUNGS),
+        resources:
+            mem_mb=3000,
+            runtime=lambda w: run_minutes(
+                ladder_training_ids(w.level, w.dataset)
+                + ladder_validation_ids(w.level, w.dataset),
+                run_iterations(w.rung, w.dataset),
+            ),
+            gres=GPU_GRES,
         params:
             iterations=lambda w: run_iterations(w.rung, w.dataset),
             initial=LADDER["initial"],
@@ -123,14 +146,14 @@ if "identifiability" in ANALYSES:
         log:
             log_file("identifiability/{rung}_L{level}_{dataset}_reference"),
         wildcard_constraints:
-            rung="R[0-2]",
+            rung="|".join(RUNGS),
         conda:
             "../envs/dpsi.yaml"
         threads: 1
         resources:
             mem_mb=2000,
             runtime=20,
-            gpu=GPU,
+            gres=GPU_GRES,
         params:
             simulator=simulator_params(),
         script:
@@ -211,7 +234,7 @@ if "identifiability" in ANALYSES:
         log:
             log_file("identifiability/{rung}_{dataset}_landscape"),
         wildcard_constraints:
-            rung="R[0-2]",
+            rung="|".join(RUNGS),
         conda:
             "../envs/dpsi.yaml"
         threads: 1
@@ -219,7 +242,7 @@ if "identifiability" in ANALYSES:
             mem_mb=3000,
             # minutes: 36 simulations per datapoint, 1-5 s each on a CPU (flattening the longest)
             runtime=lambda w: 10 + 4 * len(ladder_training_ids(1, w.dataset)),
-            gpu=GPU,
+            gres=GPU_GRES,
         params:
             losses=LADDER["losses"],
             simulator=simulator_params(),

@@ -15,7 +15,7 @@ RUN_ANALYSES = [a for a in ("materials", "minima", "heightmap_losses") if a in A
 rule identify:
     input:
         training=lambda w: prepared(training_ids(w.level, w.dataset)),
-        validation=lambda w: prepared(validation_ids(w.level)),
+        validation=lambda w: prepared(validation_ids(w.level, w.dataset)),
         truth=truth_file(),
         code=code("identify"),
     output:
@@ -28,8 +28,11 @@ rule identify:
     threads: 1
     resources:
         mem_mb=3000,
-        runtime=720,
-        gpu=GPU,
+        runtime=lambda w: run_minutes(
+            training_ids(w.level, w.dataset) + validation_ids(w.level, w.dataset),
+            IDENT["iterations"],
+        ),
+        gres=GPU_GRES,
     params:
         iterations=IDENT["iterations"],
         initial=IDENT.get("initial", "random"),
@@ -65,6 +68,14 @@ if RUN_ANALYSES:
             analysis="|".join(RUN_ANALYSES),
             material="[a-z]+",
             start="random|hand-picked",
+        resources:
+            mem_mb=3000,
+            runtime=lambda w: run_minutes(
+                dpsi_datasets.select(TABLE, int(w.level), w.dataset, w.material)
+                + dpsi_datasets.validation(TABLE, int(w.level), w.material),
+                ANALYSES[w.analysis]["iterations"],
+            ),
+            gres=GPU_GRES,
         params:
             iterations=lambda w: ANALYSES[w.analysis]["iterations"],
             initial=lambda w: w.start,
@@ -74,22 +85,44 @@ if RUN_ANALYSES:
             simulator=simulator_params(),
 
 
-rule validate_hand_picked:
+rule baseline:
     input:
-        validation=lambda w: prepared(validation_ids(w.level)),
-        code=code("validate_hand_picked"),
+        datapoint=f"{RESULTS}/prepared/{{id}}.npz",
+        code=code("baseline"),
     output:
-        f"{RESULTS}/validation/L{{level}}/hand-picked.json",
+        f"{RESULTS}/baselines/L{{level}}/{{id}}.json",
     log:
-        log_file("validate/L{level}_hand-picked"),
+        log_file("baseline/L{level}_{id}"),
+    conda:
+        "../envs/dpsi.yaml"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
+        gres=GPU_GRES,
+    params:
+        simulator=simulator_params(),
+    script:
+        "../scripts/baseline.py"
+
+
+rule unseen:
+    input:
+        summary=f"{MAIN_RUN}/summary.json",
+        datapoints=lambda w: prepared(unseen_ids(w.level, w.dataset)),
+        code=code("unseen"),
+    output:
+        f"{MAIN_RUN}/unseen.json",
+    log:
+        log_file("unseen/L{level}_{loss}_{dataset}_seed{seed}"),
     conda:
         "../envs/dpsi.yaml"
     threads: 1
     resources:
         mem_mb=3000,
         runtime=60,
-        gpu=GPU,
+        gres=GPU_GRES,
     params:
         simulator=simulator_params(),
     script:
-        "../scripts/validate_hand_picked.py"
+        "../scripts/unseen.py"

@@ -6,6 +6,8 @@ import itertools
 
 if "identifiability" in ANALYSES:
     LADDER = ANALYSES["identifiability"]
+    RUNGS = ["R0", "R1", "R2", "R1m", "R1r"]
+    """The ladder's rungs (dpsi.identifiability.RUNGS)."""
     LADDER_ROOT = f"{RESULTS}/identifiability"
     LADDER_RUN = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{loss}}/{{dataset}}/seed{{seed}}"
     LADDER_REFERENCE = f"{LADDER_ROOT}/{{rung}}/L{{level}}/{{dataset}}/reference.json"
@@ -36,9 +38,9 @@ if "identifiability" in ANALYSES:
         return iterations[rung]
 
     def ladder_prepared(rung, ids):
-        """Prepared datapoints of a rung: R2 is the main pipeline's."""
+        """Prepared datapoints of a rung: R2 is the main pipeline's (as reconstructed, not registered)."""
         if rung == "R2":
-            return prepared(ids)
+            return [f"{RESULTS}/prepared/{i}.npz" for i in ids]
         return [f"{LADDER_ROOT}/{rung}/prepared/{i}.npz" for i in ids]
 
     OOD_DATASET = "ood"
@@ -56,7 +58,7 @@ if "identifiability" in ANALYSES:
         """
         if dataset == OOD_DATASET:
             return ood_ids()
-        return validation_ids(level)
+        return validation_ids(level, dataset)
 
     def ladder_runs(rungs, losses, datasets):
         """Folder → labels of every ladder run on `rungs` with `losses` and `datasets`."""

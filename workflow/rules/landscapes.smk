@@ -8,7 +8,11 @@ if "landscapes" in ANALYSES:
     LANDSCAPES = ANALYSES["landscapes"]
     LANDSCAPE_PAIRS = {
         pair.name: pair
-        for pair in dpsi_landscapes.PAIRS
+        for pair in (
+            map(dpsi_landscapes.pair_by_name, LANDSCAPES["pairs"])
+            if "pairs" in LANDSCAPES
+            else dpsi_landscapes.PAIRS
+        )
         if pair.level in IDENT["levels"]
     }
 
@@ -16,7 +20,7 @@ if "landscapes" in ANALYSES:
         LANDSCAPE_DATAPOINTS = {
             (name, dataset): training_ids(pair.level, dataset)
             for name, pair in LANDSCAPE_PAIRS.items()
-            for dataset in LANDSCAPES["datasets"]
+            for dataset in datasets_at(pair.level, LANDSCAPES["datasets"])
         }
     except ValueError as err:
         raise WorkflowError(
@@ -44,7 +48,7 @@ if "landscapes" in ANALYSES:
             + len(LANDSCAPE_DATAPOINTS[w.pair, w.dataset])
             * LANDSCAPES["resolution"] ** 2
             // 2,
-            gpu=GPU,
+            gres=GPU_GRES,
         params:
             resolution=LANDSCAPES["resolution"],
             losses=LANDSCAPES["losses"],
@@ -55,9 +59,11 @@ if "landscapes" in ANALYSES:
 
     rule landscape_figure:
         input:
-            landscapes=expand(
-                f"{RESULTS}/landscapes/{{{{pair}}}}/{{dataset}}.npz",
-                dataset=LANDSCAPES["datasets"],
+            landscapes=lambda w: expand(
+                f"{RESULTS}/landscapes/{w.pair}/{{dataset}}.npz",
+                dataset=datasets_at(
+                    LANDSCAPE_PAIRS[w.pair].level, LANDSCAPES["datasets"]
+                ),
             ),
             code=code("landscape_figure"),
         output:
@@ -73,7 +79,9 @@ if "landscapes" in ANALYSES:
             mem_mb=1000,
             runtime=5,
         params:
-            datasets=LANDSCAPES["datasets"],
+            datasets=lambda w: datasets_at(
+                LANDSCAPE_PAIRS[w.pair].level, LANDSCAPES["datasets"]
+            ),
         script:
             "../scripts/landscape_figure.py"
 

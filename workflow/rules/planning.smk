@@ -25,7 +25,7 @@ if "planning" in ANALYSES:
         resources:
             mem_mb=3000,
             runtime=10 + 15 * PLANNING["actions"],
-            gpu=GPU,
+            gres=GPU_GRES,
         params:
             simulator=simulator_params(),
             planning=PLANNING,

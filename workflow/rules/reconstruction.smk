@@ -139,3 +139,26 @@ rule prepare:
         density=config["reconstruction"]["density"],
     script:
         "../scripts/prepare.py"
+
+
+rule register:
+    input:
+        datapoint=f"{RESULTS}/prepared/{{id}}.npz",
+        code=code("register"),
+    output:
+        datapoint=f"{RESULTS}/registered/{{id}}.npz",
+        record=f"{RESULTS}/registered/{{id}}.json",
+    log:
+        log_file("register/{id}"),
+    conda:
+        "../envs/dpsi.yaml"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
+        gres=GPU_GRES,
+    params:
+        level=lambda w: level_of(w.id),
+        simulator=simulator_params(),
+    script:
+        "../scripts/register.py"

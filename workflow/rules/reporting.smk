@@ -5,9 +5,8 @@
 rule make_tables:
     input:
         summaries=runs(),
-        hand_picked=expand(
-            f"{RESULTS}/validation/L{{level}}/hand-picked.json", level=IDENT["levels"]
-        ),
+        unseen=runs(name="unseen.json"),
+        baselines=baselines(),
         ood=OOD_SOURCES if OOD else [],
         code=code("tables"),
     output:

@@ -7,6 +7,7 @@ from dpsi.datapoint import save_datapoint
 from dpsi.identifiability import reconstructed_twin_datapoint
 from dpsi.provenance import recorded
 from dpsi.simulation import SimulatorConfig
+from dpsi.twin import MotionError
 from dpsi.twin_plan import load_truth, plan_from_config
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
@@ -15,5 +16,5 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
     config = SimulatorConfig(**{**p.simulator, "max_particles": twin["max_particles"]})
     datapoint = reconstructed_twin_datapoint(snakemake.output.raw, snakemake.wildcards.id,
                                              plan_from_config(twin["groups"]), twin["seed"], config, p.density,
-                                             materials)
+                                             materials, MotionError(**p.motion_error))
     save_datapoint(snakemake.output.prepared, datapoint)

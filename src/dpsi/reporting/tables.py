@@ -5,8 +5,10 @@ File names and CSV columns are an interface that other tools read:
 - ``motions.csv``: motion, segments, duration_s, real_waypoints, sim_steps
 - ``parameters.csv``: parameter, unit, min, max, step_level1, step_level2, hand_picked
 - ``best_params.csv``: level, loss, dataset, E, nu, rho, yield_stress, mu_table, mu_effector,
-  val_heightmap_mm (plus rows with dataset = "average" per loss, and loss = "hand-picked"), then the interval
-  <parameter>_low, <parameter>_high of each parameter the run measured it for (:mod:`dpsi.uncertainty`)
+  val_heightmap_mm, hand_picked_mm, no_motion_mm, recommended, at_bound (plus rows with dataset = "average" per loss,
+  and loss = "hand-picked"), then the interval <parameter>_low, <parameter>_high of each parameter the run
+  measured it for (:mod:`dpsi.uncertainty`)
+- ``generalisation.csv``: level, loss, dataset, seed, pair, identified_mm, hand_picked_mm, no_motion_mm, change
 - ``uncertainty.csv``: rung, level, loss, dataset, seed, quantity, estimate, low, high, determined, truth (rung
   and truth empty where they do not apply)
 - ``ood_heightmap.csv``: motion, config, loss, dataset, heightmap_mm (plus loss = "hand-picked" rows
@@ -22,6 +24,7 @@ File names and CSV columns are an interface that other tools read:
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -29,9 +32,10 @@ import pandas as pd
 
 from ..motions import MOTIONS, plan, resample
 from ..losses import VALIDATION_METRICS
-from ..parameters import HAND_PICKED, IDENTIFIED, LOWER, NAMES, STEP_SIZE, UNITS, UPPER, scale_free
+from ..parameters import HAND_PICKED, IDENTIFIED, LOWER, NAMES, STEP_SIZE, UNITS, UPPER, at_bound, hand_picked, scale_free
 from ..files import atomic_output
 from ..uncertainty import true_value
+from ..generalisation import DECIDING_METRIC
 
 HAND_PICKED_LABEL = "hand-picked"
 AVERAGE_LABEL = "average"
@@ -62,26 +66,49 @@ def parameters_table() -> pd.DataFrame:
                               step_level2=STEP_SIZE[2][n], hand_picked=getattr(HAND_PICKED, n)) for n in NAMES])
 
 
-def best_params_table(summaries: list[dict], hand_picked: dict[int, float]) -> pd.DataFrame:
+def best_params_table(summaries: list[dict], baselines: Mapping[tuple[int, str], Mapping],
+                      recommended: Mapping[int, tuple[str, str, int]] | None = None) -> pd.DataFrame:
     """The paper's main table: for each (level, loss, dataset) the parameters of the iteration with the
-    lowest validation height-map distance across seeds; per (level, loss) the average over datasets;
-    per level the hand-picked parameters' validation distance (``hand_picked``: level → mm); and the intervals of
-    the parameters whose run measured them (:data:`INTERVAL_COLUMNS`, only those some run has).
+    lowest validation height-map distance across seeds, beside the hand-picked values' and no motion's
+    distance on the same validation datapoints; per (level, loss) the average over datasets; per level the
+    hand-picked parameters with their distance over every validation datapoint of the level.
+    ``recommended`` marks one row per level (level → (loss, dataset, seed), :func:`dpsi.generalisation.recommend`).
+    Column ``at_bound`` names each identified parameter that ends exactly on a bound of its range
+    (``E=upper; nu=lower``): clipping put it there, and the data may want a value outside the range.
+    The intervals of the parameters whose run measured them follow (:data:`INTERVAL_COLUMNS`, only those some
+    run has).
 
-    ``summaries``: run summaries (identification ``summary.json``) with keys level, loss, dataset."""
-    rows = []
+    ``summaries``: run summaries (identification ``summary.json``) with keys level, loss, dataset;
+    ``baselines``: (level, datapoint id) → :func:`dpsi.generalisation.baseline` record."""
+    recommended = recommended or {}
+
+    def baseline_mm(level: int, ids, which: str) -> float:
+        return float(np.mean([baselines[(level, i)][which][DECIDING_METRIC] for i in ids]))
+
+    rows, validated = [], {}
     for (level, loss, dataset), runs in _group(summaries, ("level", "loss", "dataset")):
-        run = _best_run(runs) or {}
+        run = _best_run(runs) or runs[0]
         best = run.get("best")
+        ids = [entry[0] for entry in run["validation"]]
+        validated.setdefault(level, []).extend(i for i in ids if i not in validated.get(level, []))
         values = best["parameters"] if best else {n: math.nan for n in NAMES}
         rows.append(dict(level=level, loss=loss, dataset=dataset, **values,
                          val_heightmap_mm=best["validation"]["heightmap_mm"] if best else math.nan,
+                         hand_picked_mm=baseline_mm(level, ids, "hand_picked"),
+                         no_motion_mm=baseline_mm(level, ids, "no_motion"),
+                         recommended=recommended.get(level, (None,) * 3)[:2] == (loss, dataset)
+                         and recommended[level][2] == run["seed"], at_bound=_at_bound_label(run),
                          **_parameter_intervals(run)))
-    table = pd.DataFrame(rows, columns=["level", "loss", "dataset", *NAMES, "val_heightmap_mm", *INTERVAL_COLUMNS])
-    averages = (table.groupby(["level", "loss"], sort=False)[[*NAMES, "val_heightmap_mm"]].mean().reset_index()
-                .assign(dataset=AVERAGE_LABEL))
-    baseline = pd.DataFrame([dict(level=level, loss=HAND_PICKED_LABEL, dataset="", **HAND_PICKED.as_dict(),
-                                  val_heightmap_mm=mm) for level, mm in sorted(hand_picked.items())])
+    columns = ["level", "loss", "dataset", *NAMES, "val_heightmap_mm", "hand_picked_mm", "no_motion_mm"]
+    table = pd.DataFrame(rows, columns=[*columns, "recommended", "at_bound", *INTERVAL_COLUMNS])
+    averages = (table.groupby(["level", "loss"], sort=False)[columns[3:]].mean().reset_index()
+                .assign(dataset=AVERAGE_LABEL, recommended=False, at_bound=""))
+    baseline = pd.DataFrame([dict(level=level, loss=HAND_PICKED_LABEL, dataset="", **hand_picked(level).as_dict(),
+                                  val_heightmap_mm=baseline_mm(level, ids, "hand_picked"),
+                                  hand_picked_mm=baseline_mm(level, ids, "hand_picked"),
+                                  no_motion_mm=baseline_mm(level, ids, "no_motion"), recommended=False,
+                                  at_bound="")
+                             for level, ids in sorted(validated.items())])
     measured = [c for c in table.columns if c not in INTERVAL_COLUMNS or table[c].notna().any()]
     return (pd.concat([table, averages, baseline], ignore_index=True)
             .sort_values(["level"], kind="stable")[measured].reset_index(drop=True))
@@ -111,6 +138,23 @@ def uncertainty_table(summaries: list[dict]) -> pd.DataFrame:
                  truth=true_value(q["exponents"], s["truth"]) if s.get("truth") else math.nan)
             for s in summaries for q in (s.get("uncertainty") or {}).get("quantities", [])]
     return pd.DataFrame(rows, columns=list(UNCERTAINTY_COLUMNS))
+
+
+def _at_bound_label(summary: dict | None) -> str:
+    """``name=lower`` / ``name=upper`` for each parameter a run identified (those of its level, less the ones
+    it held known) whose value at its best iteration lies on a bound of its range, joined by "; "."""
+    if not summary or not summary.get("best"):
+        return ""
+    identified = [n for n in IDENTIFIED[int(summary["level"])] if n not in summary.get("known", ())]
+    return "; ".join(f"{n}={side}" for n, side in at_bound(summary["best"]["parameters"], identified).items())
+
+
+def generalisation_table(rows: list[dict]) -> pd.DataFrame:
+    """Per run and unseen datapoint (:func:`dpsi.generalisation.comparison_rows`): the height-map distance
+    (mm) of the identified parameters, the hand-picked values and no motion, and the change against the
+    hand-picked values."""
+    return pd.DataFrame(rows, columns=["level", "loss", "dataset", "seed", "pair", "identified_mm", "hand_picked_mm",
+                                       "no_motion_mm", "change"])
 
 
 def ood_table(records: list[dict]) -> pd.DataFrame:

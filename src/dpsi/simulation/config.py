@@ -15,7 +15,9 @@ from ..motions import DT, Trajectory
 from ..parameters import STIFFEST, Parameters
 
 
-PRECISIONS = ("f64", "f32")
+
+WALL_CELLS = 3
+"""Nodes this close to the box's faces stop outward motion (the box walls)."""
 
 class SimulationError(RuntimeError):
     """A simulation could not run or went unstable; the message says where and with what parameters."""
@@ -48,15 +50,11 @@ class SimulatorConfig:
     """Run the particle and grid loops that scatter to the grid, and the light ones, on one thread (True)
     or on all (False: on the CPU the transfers then gather at the nodes, on a GPU they add atomically);
     None chooses by ``arch``: see :attr:`serial_loops`."""
-    precision: str = "f64"
-    """Floating-point precision of the simulation, "f64" or "f32" (Taichi's default_fp: one per process)."""
     threads: int | None = None
-    """CPU threads Taichi may run loops on (None: every CPU this process may run on). Like ``arch`` and
-    ``precision`` it is fixed by the first simulator of a process."""
+    """CPU threads Taichi may run loops on (None: every CPU this process may run on). Like ``arch`` it is
+    fixed by the first simulator of a process."""
 
     def __post_init__(self):
-        if self.precision not in PRECISIONS:
-            raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.dx <= 0 or self.width <= 4 * self.dx or self.height <= 4 * self.dx:
             raise ValueError(f"simulator box {self.width}×{self.height} m is too small for cell {self.dx} m")
         if self.threads is not None and self.threads < 1:
@@ -83,6 +81,32 @@ class SimulatorConfig:
         """Substeps per step for these parameters (explicit stability with margin ``cfl``)."""
         n = math.ceil(self.step_dt * params.p_wave_speed() / (self.cfl * self.dx))
         return max(self.min_substeps, n)
+
+    def check_box(self, scene: "Scene") -> np.ndarray:
+        """The grid's corner (m) for ``scene`` (its box centred on the particles' footprint, the table
+        WALL_CELLS cells above its floor), after checking that the particles and the effector's tip stay
+        inside the box (two cells from its faces); :class:`SimulationError` saying which leaves it."""
+        shape = np.array(self.grid_shape)
+        origin = np.array([*(scene.centre_xy - 0.5 * shape[0] * self.dx), scene.table_z - WALL_CELLS * self.dx])
+        upper, lower = origin + (shape - 2) * self.dx, origin + 2 * self.dx
+        box = (f"[{lower.round(4)}, {upper.round(4)}] m (simulator width {self.width:g} m in x and y, height "
+               f"{self.height:g} m above the table)")
+        outside = np.any((scene.particles < lower) | (scene.particles > upper), axis=1)
+        if outside.any():
+            first = scene.particles[outside][0]
+            raise SimulationError(f"{outside.sum()} particles lie outside the simulated box {box} (e.g. "
+                                  f"{first.round(4)}); the object is larger than the box allows or lies below the "
+                                  "table")
+        tips, _ = scene.tip_poses()
+        margin = 2 * self.dx
+        bad = np.any((tips[:, :2] < lower[:2] + margin) | (tips[:, :2] > upper[:2] - margin), axis=1)
+        bad |= (tips[:, 2] < scene.table_z - self.dx) | (tips[:, 2] > upper[2])
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise SimulationError(f"the effector trajectory leaves the simulated box at step {k} (tip at "
+                                  f"{tips[k].round(4)} m, box {box}); the object is too large or the motion goes "
+                                  "too far for the box")
+        return origin
 
     @property
     def max_substeps(self) -> int:

@@ -16,7 +16,7 @@ TINY = 1e-30
 
 ELASTIC_MARGIN = 0.9
 """:func:`surely_elastic` answers yes only below this fraction of the yield strain, leaving room for
-round-off (of float32 too) between its bound and the exact test."""
+round-off between its bound and the exact test."""
 
 
 @ti.func

@@ -46,18 +46,16 @@ import taichi as ti
 
 from ..effectors import GRID, SDF_GRID_RESOLUTION, Effector
 from ..parameters import Parameters
-from .config import Scene, SimulationError, SimulatorConfig
+from .config import WALL_CELLS, Scene, SimulationError, SimulatorConfig
 from .constitutive import (compose, compose_adjoint, lame_gradient, lame_parameters, plastic_flow,
                            plastic_flow_adjoint, principal_stress, principal_stress_adjoint)
 from .contact import effector_normal, effector_sdf, frictional_contact, frictional_contact_adjoint, rotation_z
+from . import memory
 from .runtime import ensure_taichi
 from .svd import svd_backward, warm_started_svd
 
 GRAVITY = -9.81
 """Acceleration of gravity along z (m/s²)."""
-
-WALL_CELLS = 3
-"""Nodes this close to the box's faces stop outward motion (the box walls)."""
 
 CONTACT_MARGIN_CELLS = 2
 """Points this many cells outside the effector's bounding box are tested for contact (its signed distance
@@ -74,9 +72,42 @@ U (9), σ (3), V (9)."""
 MATERIAL_GRADIENTS = ("shear", "lam", "particle_mass", "yield_stress", "mu_table", "mu_effector")
 """Order of the per-particle parameter gradients (the friction ones also per grid node, last two)."""
 
-NUMPY_FLOAT = {"f64": np.float64, "f32": np.float32}
+PARTICLE_FLOATS = 109
+"""Floats per particle outside the substep slots: V at the step's start, the affine momentum and elastic
+stretches (21), contact (7), the state gradients in two slots (48) and the others (9), and the sorted
+transfer buffers (24); plus one 32-bit integer (its rank in bin order)."""
+
+NODE_FLOATS = 23
+"""Floats per grid node: mass, momentum, velocity (7), contact (7) and their gradients with the friction
+sums (9); plus two 32-bit integers (its bin's count and first index)."""
 
 MIB = 2.0 ** 20
+
+
+def field_bytes(config: SimulatorConfig) -> dict[str, float]:
+    """Bytes of the Taichi fields of a simulator of ``config``, by what they hold: "slots" the particle
+    state in each of the max_substeps + 1 substep slots of a step, "particles" the rest per particle,
+    "grid" the grid nodes, "effector" its distance grid and the trajectory."""
+    size = np.dtype(np.float64).itemsize
+    n = config.max_particles
+    return {"slots": (config.max_substeps + 1) * n * SUBSTEP_WIDTH * size,
+            "particles": n * (PARTICLE_FLOATS * size + 4),
+            "grid": float(np.prod(config.grid_shape)) * (NODE_FLOATS * size + 2 * 4),
+            "effector": (SDF_GRID_RESOLUTION ** 3 + 4 * (config.max_steps + 1)) * size}
+
+
+def check_capacity(config: SimulatorConfig) -> None:
+    """Raise :class:`SimulationError`, naming the settings to change, if the fields of a simulator of
+    ``config`` do not fit in the memory available (Taichi touches all of them when a kernel first runs)."""
+    need = {what: size / memory.GB for what, size in field_bytes(config).items()}
+    slots, (nx, ny, nz) = config.max_substeps + 1, config.grid_shape
+    memory.check_fits(sum(need.values()) * memory.GB,
+                      f"its fields: the particle state in {slots} substep slots × {config.max_particles} "
+                      f"particles ({need['slots']:.3g} GB), the rest of the particles ({need['particles']:.3g} GB) "
+                      f"and the grid {nx}×{ny}×{nz} ({need['grid']:.3g} GB)",
+                      f"lower simulator.max_particles (now {config.max_particles}; --max-particles on the command "
+                      f"line), or raise simulator.cfl (now {config.cfl:g}; it sets the {config.max_substeps} substeps "
+                      f"per step at the stiffest parameters) or simulator.dx (now {config.dx:g} m)")
 
 
 def mapped_array(size: int, dtype) -> np.ndarray:
@@ -102,9 +133,9 @@ class Simulator:
 
     def __init__(self, config: "SimulatorConfig | None" = None):
         self.config = config or SimulatorConfig()
-        ensure_taichi(self.config.arch, self.config.precision, self.config.threads)
+        check_capacity(self.config)
+        ensure_taichi(self.config.arch, self.config.threads)
         c = self.config
-        self.float = NUMPY_FLOAT[c.precision]
         self.dx = c.dx
         self.inv_dx = 1.0 / c.dx
         self.grid_shape = c.grid_shape
@@ -187,7 +218,7 @@ class Simulator:
         self._origin = self._tips = self._effector_bounds = None  # of the current scene, for _begin_step
         self._checkpoints = None
         self._substates = None
-        self._substep_buffer = np.empty(0, dtype=self.float)
+        self._substep_buffer = np.empty(0, dtype=np.float64)
         self.substeps = 0
         self.serial = c.serial_loops
 
@@ -795,34 +826,19 @@ class Simulator:
                                   f"max_particles={c.max_particles}; lower the particle density or raise the capacity")
         if steps > c.max_steps:
             raise SimulationError(f"trajectory has {steps} steps, more than max_steps={c.max_steps}")
-        origin = np.array([*(scene.centre_xy - 0.5 * self.grid_shape[0] * c.dx), scene.table_z - WALL_CELLS * c.dx])
-        upper = origin + (np.array(self.grid_shape) - 2) * c.dx
-        lower = origin + 2 * c.dx
-        outside = np.any((scene.particles < lower) | (scene.particles > upper), axis=1)
-        if outside.any():
-            first = scene.particles[outside][0]
-            raise SimulationError(f"{outside.sum()} particles lie outside the simulated box "
-                                  f"[{lower.round(4)}, {upper.round(4)}] m (e.g. {first.round(4)}); the object is "
-                                  f"larger than SimulatorConfig.width/height allow or lies below the table")
+        origin = c.check_box(scene)
         tips, yaws = scene.tip_poses()
-        margin = np.array([2 * c.dx, 2 * c.dx, 0.0])
-        bad = np.any((tips[:, :2] < lower[:2] + margin[:2]) | (tips[:, :2] > upper[:2] - margin[:2]), axis=1)
-        bad |= (tips[:, 2] < scene.table_z - c.dx) | (tips[:, 2] > upper[2])
-        if bad.any():
-            k = int(np.argmax(bad))
-            raise SimulationError(f"the effector trajectory leaves the simulated box at step {k} "
-                                  f"(tip at {tips[k].round(4)} m, box [{lower.round(4)}, {upper.round(4)}] m)")
         self.n_particles[None] = n
         self.origin[None] = origin
         self._origin = origin
         self.table_z[None] = scene.table_z
         self.particle_volume[None] = scene.particle_volume
         self._set_effector(scene.effector)
-        padded = np.zeros((c.max_steps + 1, 3), dtype=self.float)
+        padded = np.zeros((c.max_steps + 1, 3), dtype=np.float64)
         padded[: steps + 1] = tips
         self.tip.from_numpy(padded)
         self._tips = tips
-        padded_yaw = np.zeros(c.max_steps + 1, dtype=self.float)
+        padded_yaw = np.zeros(c.max_steps + 1, dtype=np.float64)
         padded_yaw[: steps + 1] = yaws
         self.yaw.from_numpy(padded_yaw)
 
@@ -869,7 +885,10 @@ class Simulator:
         # let the last run's checkpoints go before this run's exist: both at once set the peak memory
         self._params = self._checkpoints = self._substates = None
         n, steps = len(scene.particles), scene.trajectory.n_steps
-        checkpoints = np.empty((steps + 1, n, STATE_WIDTH), dtype=self.float)
+        memory.check_fits((steps + 1) * n * STATE_WIDTH * np.dtype(np.float64).itemsize,
+                   f"the checkpoints of this scene ({steps + 1} steps × {n} particles)",
+                   "use fewer particles (a lower particle density) or a shorter trajectory")
+        checkpoints = np.empty((steps + 1, n, STATE_WIDTH), dtype=np.float64)
         checkpoints[0] = 0.0
         checkpoints[0, :, :3] = scene.particles
         checkpoints[0, :, 15:24] = np.eye(3).reshape(1, 9)
@@ -892,15 +911,19 @@ class Simulator:
         return self.final_positions()
 
     def _substep_storage(self, n: int, steps: int) -> "np.ndarray | None":
-        """Room for every substep state of the trajectory, or None if it exceeds the memory budget.
-        The buffer is kept and reused by later calls (fresh memory costs a page fault per 4 KiB)."""
+        """Room for every substep state of the trajectory, or None if it exceeds the memory budget or the
+        memory available (the backward pass then recomputes them). The buffer is kept and reused by later
+        calls (fresh memory costs a page fault per 4 KiB)."""
         shape = (steps, self.substeps, n, SUBSTEP_WIDTH)
         size = int(np.prod(shape))
         if size * self._substep_buffer.itemsize > self.config.substep_memory_mb * MIB:
             return None
         if self._substep_buffer.size < size:
-            self._substep_buffer = np.empty(0, dtype=self.float)
-            self._substep_buffer = mapped_array(size, self.float)
+            self._substep_buffer = np.empty(0, dtype=np.float64)
+            available = memory.available_memory()
+            if available is not None and size * self._substep_buffer.itemsize > available:
+                return None
+            self._substep_buffer = mapped_array(size, np.float64)
         return self._substep_buffer[:size].reshape(shape)
 
     def final_positions(self) -> np.ndarray:
@@ -925,7 +948,7 @@ class Simulator:
         if self._checkpoints is None:
             raise SimulationError("backward() needs a forward() first")
         checkpoints = self._checkpoints
-        grad_positions = np.ascontiguousarray(grad_positions, dtype=self.float)
+        grad_positions = np.ascontiguousarray(grad_positions, dtype=np.float64)
         if grad_positions.shape != checkpoints.shape[1:2] + (3,):
             raise ValueError(f"gradient has shape {grad_positions.shape}, expected {(checkpoints.shape[1], 3)}")
         odd = self.substeps % 2

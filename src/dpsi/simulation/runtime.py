@@ -8,7 +8,7 @@ import taichi as ti
 from taichi.lang import impl
 from taichi.lang.ast import ast_transformer_utils
 
-_initialised: tuple[str, str] | None = None
+_initialised: str | None = None
 
 
 def source_position(context, node) -> str:
@@ -22,28 +22,25 @@ def source_position(context, node) -> str:
             f"{context.src[node.lineno - 1]}\n")
 
 
-def ensure_taichi(arch: str = "cpu", precision: str = "f64", threads: int | None = None) -> None:
-    """Initialise Taichi for ``arch`` ("cpu" or "cuda") with floating-point ``precision`` ("f64" or
-    "f32"), the offline kernel cache and, on the CPU, ``threads`` threads (None: every CPU this process
-    may run on, which under a batch system is what the job was given).
+def ensure_taichi(arch: str = "cpu", threads: int | None = None) -> None:
+    """Initialise Taichi for ``arch`` ("cpu" or "cuda") in float64, with the offline kernel cache and, on
+    the CPU, ``threads`` threads (None: every CPU this process may run on, which under a batch system is
+    what the job was given).
 
-    Later calls with the same arch and precision do nothing (the thread count of the first call stays);
-    asking for another arch or precision in the same process is an error, because re-initialising Taichi
-    would throw away every compiled kernel and field.
+    Later calls with the same arch do nothing (the thread count of the first call stays); asking for
+    another arch in the same process is an error, because re-initialising Taichi would throw away every
+    compiled kernel and field.
     """
     global _initialised
     if _initialised is not None:
-        if (arch, precision) != _initialised:
-            raise RuntimeError(f"Taichi already runs on {_initialised[0]!r} in {_initialised[1]} in this process; "
-                               f"cannot switch to {arch!r} in {precision} (start a new process for it)")
+        if arch != _initialised:
+            raise RuntimeError(f"Taichi already runs on {_initialised!r} in this process; cannot switch to "
+                               f"{arch!r} (start a new process for it)")
         return
     archs = {"cpu": ti.cpu, "cuda": ti.cuda}
     if arch not in archs:
         raise ValueError(f"unknown Taichi arch {arch!r}; use one of {sorted(archs)}")
-    floats = {"f64": ti.f64, "f32": ti.f32}
-    if precision not in floats:
-        raise ValueError(f"unknown precision {precision!r}; use one of {sorted(floats)}")
-    options = dict(arch=archs[arch], default_fp=floats[precision], offline_cache=os.environ.get("DPSI_NO_CACHE") is None,
+    options = dict(arch=archs[arch], default_fp=ti.f64, offline_cache=os.environ.get("DPSI_NO_CACHE") is None,
                    log_level=ti.WARN, random_seed=0)
     if arch == "cpu":
         options["cpu_max_num_threads"] = threads or len(os.sched_getaffinity(0))
@@ -56,4 +53,4 @@ def ensure_taichi(arch: str = "cpu", precision: str = "f64", threads: int | None
     if impl.current_cfg().arch != archs[arch]:
         raise RuntimeError(f"Taichi found no usable {arch!r} device here and fell back to "
                            f"{impl.current_cfg().arch.name}; run on a machine with one, or ask for 'cpu'")
-    _initialised = (arch, precision)
+    _initialised = arch

@@ -8,7 +8,6 @@ with the first denominator kept away from zero when two singular values coincide
 """
 
 import taichi as ti
-from taichi.lang import impl
 
 MIN_GAP = 1e-9
 """Smallest |s_j − s_i| used in the derivative (dimensionless stretch)."""
@@ -38,14 +37,9 @@ def svd_backward(u, s, v, grad_u, grad_s, grad_v):
 JACOBI_SWEEPS = 3
 """Most sweeps of one-sided Jacobi rotations; from a warm start one or two already converge."""
 
-ORTHOGONAL = {"f64": 1e-15, "f32": 1e-6}
+ORTHOGONAL = 1e-15
 """Columns b_p, b_q count as orthogonal when |b_p·b_q| ≤ ORTHOGONAL |b_p| |b_q| (then no rotation): a
-few units of the precision's rounding error."""
-
-
-def orthogonal_tolerance() -> float:
-    """:data:`ORTHOGONAL` for the floating-point precision Taichi runs with in this process."""
-    return ORTHOGONAL["f32" if impl.get_runtime().default_fp == ti.f32 else "f64"]
+few units of float64's rounding error."""
 
 
 @ti.func
@@ -63,7 +57,7 @@ def warm_started_svd(F, V0):
             bq = ti.Vector([B[0, q], B[1, q], B[2, q]])
             gamma = bp.dot(bq)
             pp, qq = bp.dot(bp), bq.dot(bq)
-            if gamma * gamma > ti.static(orthogonal_tolerance() ** 2) * pp * qq:
+            if gamma * gamma > ti.static(ORTHOGONAL ** 2) * pp * qq:
                 rotated = True
                 zeta = (qq - pp) / (2.0 * gamma)
                 t = ti.math.sign(zeta) / (ti.abs(zeta) + ti.sqrt(1.0 + zeta * zeta))
