@@ -16,6 +16,8 @@ from dpsi.__main__ import build_parser, main
 from dpsi.parameters import HAND_PICKED
 from dpsi.pointclouds import write_mesh, write_points
 from dpsi.prepare import surface_points
+from dpsi.reporting.tables import uncertainty_table
+from dpsi.uncertainty import describe
 from dpsi.simulation import SimulationError, Simulator, memory
 
 KEYS = {"particles", "heightmap_mm", "pcd_cd", "prt_cd", "pcd_emd", "prt_emd", "params", "repairs"}
@@ -60,6 +62,30 @@ def test_identify_saves_and_prints_the_parameters(shapes, tmp_path):
     assert summary["best"]["iteration"] == 1 and summary["completed_iterations"] == 1
     assert f"E: {summary['best']['parameters']['E']:g} Pa" in done.stdout
     assert "identify L1 prt_emd seed 0 1/1" in done.stderr  # plain progress lines when not a terminal
+    # what the data determine, one line per quantity, as the summary has it
+    assert "what the data determine" in done.stdout
+    for quantity in summary["uncertainty"]["quantities"]:
+        assert f"  {describe(quantity)}" in done.stdout.splitlines()
+
+
+def test_identify_json_is_the_summary_with_its_intervals_and_the_table_repeats_them(shapes, tmp_path):
+    done = _run("identify", *shapes, "--loss", "prt_emd", "--iterations", "1", "--initial", "hand-picked",
+                "--out", str(tmp_path), "--json")
+    assert done.returncode == 0, done.stderr
+    printed = json.loads(done.stdout)
+    assert printed == json.loads((tmp_path / "summary.json").read_text())
+    block = printed["uncertainty"]
+    assert block["iteration"] == printed["best"]["iteration"] and block["tolerance_mm"] > 0
+    assert [q["quantity"] for q in block["quantities"]][:6] == ["E", "nu", "rho", "yield_stress", "E/rho",
+                                                                 "yield_stress/E"]
+    assert block["quantities"][0]["estimate"] == pytest.approx(printed["best"]["parameters"]["E"])
+    rows = uncertainty_table([{**printed, "level": 1, "loss": "prt_emd", "dataset": "cli", "seed": 0}])
+    columns = ["quantity", "estimate", "low", "high", "determined"]
+    assert rows[columns].to_dict("records") == [{k: q[k] for k in columns} for q in block["quantities"]]
+    assert rows.rung.eq("").all() and rows.truth.isna().all()
+    undetermined = _run("identify", *shapes, "--loss", "prt_emd", "--iterations", "1", "--initial", "hand-picked",
+                        "--out", str(tmp_path / "none"), "--no-uncertainty", "--json")
+    assert "uncertainty" not in json.loads(undetermined.stdout)
 
 
 @pytest.mark.parametrize("command, options", [
@@ -67,7 +93,7 @@ def test_identify_saves_and_prints_the_parameters(shapes, tmp_path):
     (["simulate"], ["--before", "--after", "--motion", "--effector", "--param", "--density", "--table-z",
                     "--max-particles", "--json"]),
     (["identify"], ["--before", "--validate", "--loss", "--level", "--seed", "--iterations", "--initial", "--out",
-                    "--max-particles"]),
+                    "--max-particles", "--uncertainty", "--json"]),
 ])
 def test_help_documents_every_option(capsys, command, options):
     with pytest.raises(SystemExit) as exit_:

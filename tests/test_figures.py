@@ -133,3 +133,28 @@ def test_outcome_plots_reject_bad_particles(tmp_path, datapoint, plot):
         plot(datapoint, np.zeros((4, 2)), tmp_path / "x.png", tmp_path / "x.pdf")
     with pytest.raises(ValueError, match="final particles: contains non-finite"):
         plot(datapoint, np.full((4, 3), np.nan), tmp_path / "x.png", tmp_path / "x.pdf")
+
+
+def test_the_interval_figure_draws_each_quantity_s_bar_estimate_and_truth(tmp_path, monkeypatch):
+    from dpsi.reporting import figures
+
+    rows = []
+    for seed, determined in ((0, True), (1, False)):
+        for quantity, (low, estimate, high, truth) in {"E": (3e4, 4e4, 6e4, 5e4),
+                                                      "yield_stress/E": (0.04, 0.05, 0.07, 0.05),
+                                                      "yield_stress^1*E^-0.9": (1.0, 2.0, 3.0, 2.5)}.items():
+            rows.append(dict(rung="R1", level=1, loss="prt_emd", dataset="1-round", seed=seed, quantity=quantity,
+                             estimate=estimate, low=low, high=high, determined=determined, truth=truth))
+    drawn = {}
+    monkeypatch.setattr(figures, "save", lambda fig, png, pdf: drawn.update(fig=fig))
+    figures.plot_intervals(pd.DataFrame(rows), tmp_path / "u.png", tmp_path / "u.pdf", "intervals")
+    panels = {ax.get_title(): ax for ax in drawn["fig"].axes}
+    assert set(panels) == {"$E$", "yield_stress/E"}  # the principal direction's name differs by run: no panel
+    bars = [line for line in panels["$E$"].lines if len(line.get_xdata()) == 2]
+    assert [list(b.get_xdata()) for b in bars] == [[3e4, 6e4]] * 2
+    assert [b.get_linestyle() for b in bars] == ["-", ":"]  # determined solid, not determined dotted
+    crosses = [line for line in panels["$E$"].lines if line.get_marker() == "x"]
+    assert [list(c.get_xdata()) for c in crosses] == [[5e4]] * 2
+    monkeypatch.undo()
+    figures.plot_intervals(pd.DataFrame(rows), tmp_path / "u.png", tmp_path / "u.pdf", "intervals")
+    assert_figure(tmp_path, "u", min_pixels=250)

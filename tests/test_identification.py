@@ -95,6 +95,24 @@ def test_a_known_parameter_is_held_and_the_others_identified(simulator, problem,
                  simulator=simulator, progress=io.StringIO())
 
 
+def test_what_the_data_determine_is_measured_at_the_best_iteration_and_kept_in_the_state(simulator, problem,
+                                                                                         tmp_path, monkeypatch):
+    run = dict(level=1, loss="prt_cd", training=problem[0], validation_set=problem[1], iterations=2,
+               initial=HAND_PICKED, simulator=simulator, progress=io.StringIO(), known={"rho": 1250.0},
+               uncertainty=True)
+    summary = identify(tmp_path, **run)
+    block = summary["uncertainty"]
+    assert block["iteration"] == summary["best"]["iteration"] and block["free"] == ["E", "nu", "yield_stress"]
+    assert block["evaluations"] == 7 and "error" not in block
+    estimates = {q["quantity"]: q["estimate"] for q in block["quantities"]}
+    assert estimates["E"] == pytest.approx(summary["best"]["parameters"]["E"])
+    assert estimates["yield_stress/E"] == pytest.approx(summary["best"]["parameters"]["yield_stress"] / estimates["E"])
+    assert json.loads((tmp_path / "summary.json").read_text())["uncertainty"] == block
+    monkeypatch.setattr(identification, "uncertainty_at", lambda *args, **kwargs: pytest.fail("measured again"))
+    assert identify(tmp_path, **run)["uncertainty"] == block  # a finished run asked again reuses its block
+    assert "uncertainty" not in identify(tmp_path, **{**run, "uncertainty": False})
+
+
 class Interrupt(io.StringIO):
     """A progress stream that raises KeyboardInterrupt on its ``after``-th line, i.e. right after a row
     has been saved."""

@@ -2,6 +2,7 @@
 cluster executor plugin (each job a separate submission, so nothing can rely on shared process state)."""
 
 import hashlib
+import json
 import shutil
 import subprocess
 import sys
@@ -213,11 +214,17 @@ def test_tiny_workflow_makes_every_table(tiny_run):
     assert list(motions.columns) == ["motion", "segments", "duration_s", "real_waypoints", "sim_steps"]
     assert list(motions.sim_steps) == [87, 94, 152, 153, 378, 460, 625]
     best = pd.read_csv(tables / "best_params.csv")
-    assert list(best.columns) == ["level", "loss", "dataset", "E", "nu", "rho", "yield_stress", "mu_table",
-                                  "mu_effector", "val_heightmap_mm", "hand_picked_mm", "no_motion_mm", "recommended",
-                                  "at_bound"]
+    names = ["E", "nu", "rho", "yield_stress", "mu_table", "mu_effector"]
+    intervals = [f"{n}_{end}" for n in names for end in ("low", "high")]
+    assert list(best.columns) == ["level", "loss", "dataset", *names, "val_heightmap_mm", "hand_picked_mm",
+                                  "no_motion_mm", "recommended", "at_bound", *intervals]
     assert set(best.loss) == {"prt_cd", "hand-picked"} and set(best.level) == {1, 2}
-    assert best.drop(columns=["dataset", "at_bound"]).notna().all().all() and (best.val_heightmap_mm > 0).all()
+    assert best.drop(columns=["dataset", "at_bound", *intervals]).notna().all().all()
+    assert (best.val_heightmap_mm > 0).all()
+    # the intervals of what each run identified (level 1 holds the frictions), holding its estimate
+    for row in best[best.loss == "prt_cd"].itertuples():
+        for n in names[:4] if row.level == 1 else names:
+            assert getattr(row, f"{n}_low") <= getattr(row, n) <= getattr(row, f"{n}_high"), (row.level, n)
     hand = best[best.loss == "hand-picked"].set_index("level")
     assert (hand.val_heightmap_mm == hand.hand_picked_mm).all() and (hand.no_motion_mm > hand.hand_picked_mm).all()
     assert best.groupby("level").recommended.sum().tolist() == [1, 1]
@@ -240,15 +247,38 @@ def test_tiny_workflow_makes_every_table(tiny_run):
         ["level", "parameter"]).truth
     level = recovery.level.iloc[0]
     assert truth[(level, "E/rho")] == pytest.approx(truth[(level, "E")] / truth[(level, "rho")])
-    for name in ("motions", "parameters", "best_params", "generalisation", "ood_heightmap", "recovery_error"):
+    for name in ("motions", "parameters", "best_params", "generalisation", "ood_heightmap", "recovery_error",
+                 "uncertainty", "identifiability_R0_uncertainty", "identifiability_R0_coverage"):
         assert (tables / f"{name}.md").read_text().count("|") > 10
         assert r"\toprule" in (tables / f"{name}.tex").read_text()
         assert (tables / f"{name}.csv.provenance.json").is_file()
 
 
+def test_a_run_s_summary_and_the_uncertainty_tables_carry_the_same_intervals(tiny_run):
+    """The main sweep's uncertainty.csv and the R0 ladder's table hold each run's uncertainty block as is."""
+    results = tiny_run / "results" / "twin-tiny"
+    tables = results / "tables"
+    columns = ["rung", "level", "loss", "dataset", "seed", "quantity", "estimate", "low", "high", "determined", "truth"]
+    for table, summaries in (("uncertainty", sorted(results.glob("runs/L*/prt_cd/1-round/seed0/summary.json"))),
+                             ("identifiability_R0_uncertainty",
+                              [results / "identifiability/R0/L1/prt_cd/1-round/seed0/summary.json"])):
+        rows = pd.read_csv(tables / f"{table}.csv", keep_default_na=False, na_values=[""])
+        assert list(rows.columns) == columns and len(summaries) >= 1
+        for path in summaries:
+            summary = json.loads(path.read_text())
+            block = summary["uncertainty"]
+            assert block["iteration"] == summary["best"]["iteration"] and "error" not in block
+            mine = rows[(rows.level == summary["level"]) & (rows.loss == summary["loss"])]
+            assert mine[["quantity", "estimate", "low", "high", "determined"]].to_dict("records") == [
+                {k: q[k] for k in ("quantity", "estimate", "low", "high", "determined")} for q in block["quantities"]]
+            assert mine.truth.notna().all() and (mine.rung.isna().all() if table == "uncertainty"
+                                                 else (mine.rung == "R0").all())
+
+
 def test_tiny_workflow_makes_figures(tiny_run):
     figures = tiny_run / "results" / "twin-tiny" / "figures"
-    for name in ("runs_L1", "runs_L2", "heightmaps_clay-flattening-cylinder-ood-0"):
+    for name in ("runs_L1", "runs_L2", "heightmaps_clay-flattening-cylinder-ood-0", "uncertainty",
+                 "identifiability_R0_uncertainty"):
         assert (figures / f"{name}.png").stat().st_size > 10_000
         assert (figures / f"{name}.pdf").stat().st_size > 1_000
 

@@ -39,6 +39,7 @@ from dpsi.release import import_release
 from dpsi.release_plan import ImportTables
 from dpsi.shape_files import ply_has_faces
 from dpsi.simulation import SimulationError, Simulator, SimulatorConfig
+from dpsi.uncertainty import describe
 
 DENSITY = 4e7
 """Default particle density (particles/m³), the lowest of SPEC §3.3."""
@@ -170,6 +171,12 @@ def build_parser() -> argparse.ArgumentParser:
                             "each; paths relative to the CSV's folder), instead of --before/--after/--motion/"
                             "--effector: one identification can span motions and effectors")
     ident.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    ident.add_argument("--uncertainty", action=argparse.BooleanOptionalAction, default=True,
+                       help="measure at the best iteration what the data determine: an interval for each parameter, "
+                            "E/rho, yield_stress/E and the stiffest direction (two gradient passes per identified "
+                            "parameter; default on)")
+    ident.add_argument("--json", action="store_true", help="print the run's summary (as saved in summary.json, "
+                       "its intervals under 'uncertainty') as one JSON object")
 
     imp = commands.add_parser("import-release", help="the paper's published real pairs as a raw dataset",
                               description="Write the published real clay pairs under SOURCE (a clone of the data "
@@ -291,12 +298,14 @@ def _identify(parser, args, repairs: list[dict]) -> list[str]:
         registered.update(zip(map(id, others), _registered(simulator, others, args.level, offsets)))
         training, validation_set = ([registered[id(dp)] for dp in dps] for dps in (training, validation_set))
     summary = identify(args.out, args.level, args.loss, training, validation_set, args.seed, args.iterations,
-                       initial, simulator=simulator, known=dict(args.known))
+                       initial, simulator=simulator, known=dict(args.known), uncertainty=args.uncertainty)
     best = summary["best"]
     if best is None:
         raise IdentificationError(f"no updated iteration could be validated (every validation simulation failed "
                                   f"or gave no finite height-map distance: see val_skipped in "
                                   f"{Path(args.out) / 'log.csv'}); nothing identified")
+    if args.json:
+        return [json.dumps(summary)]
     held = [f"{name} was held at the given value (--known)" for name, _ in args.known]
     values = best["parameters"]
     bounds = at_bound(values, [n for n in IDENTIFIED[args.level] if n not in dict(args.known)])
@@ -306,7 +315,17 @@ def _identify(parser, args, repairs: list[dict]) -> list[str]:
     return [f"best iteration {best['iteration']} (validation height map {best['validation']['heightmap_mm']:.1f} mm):",
             *marked, *held,
             *(f"motion offset of {i}: {mm} mm" for i, mm in offsets.items()), *_repair_lines(repairs),
-            f"saved in {Path(args.out) / 'summary.json'}"]
+            *_uncertainty_lines(summary.get("uncertainty")), f"saved in {Path(args.out) / 'summary.json'}"]
+
+
+def _uncertainty_lines(block: dict | None) -> list[str]:
+    """What the data determine, one line per quantity (:func:`dpsi.uncertainty.describe`)."""
+    if block is None:
+        return []
+    if "error" in block:
+        return [f"what the data determine could not be measured: {block['error']}"]
+    return [f"what the data determine (loss {block['loss_mm']:.1f} mm, tolerance {block['tolerance_mm']:.2g} mm "
+            "from its bootstrap spread):", *(f"  {describe(q)}" for q in block["quantities"])]
 
 
 def _import_release(parser, args) -> list[str]:

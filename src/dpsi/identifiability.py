@@ -49,9 +49,10 @@ the height map inside the outlines."""
 
 COLUMNS = ("rung", "level", "loss", "dataset", "seed", "parameter", "truth", "estimate", "rel_error",
            "loss_at_truth_mm", "loss_at_estimate_mm", "val_heightmap_mm", "val_heightmap_hand_picked_mm",
-           "val_heightmap_no_motion_mm")
+           "val_heightmap_no_motion_mm", "low", "high", "determined")
 """Columns of the ladder table: one row per run and identified parameter, and per scale-free combination
-(:data:`dpsi.parameters.SCALE_FREE`: E/rho, yield_stress/E) of the identified ones."""
+(:data:`dpsi.parameters.SCALE_FREE`: E/rho, yield_stress/E) of the identified ones; ``low``, ``high`` and
+``determined``: the quantity's interval where the run measured it (:mod:`dpsi.uncertainty`), else empty."""
 
 
 SAME_AT_R0 = {"pcd_cd": "prt_cd", "pcd_emd": "prt_emd"}
@@ -147,8 +148,12 @@ def run_rows(summary: dict, log: pd.DataFrame, ref: dict) -> list[dict]:
     truth.update(scale_free(truth))
     estimate.update(scale_free(estimate))
     held = set(summary.get("known", ()))  # held at given values, not recovered: no row of their own
+    measured = {q["quantity"]: q for q in (summary.get("uncertainty") or {}).get("quantities", [])}
+    unmeasured = {"low": math.nan, "high": math.nan, "determined": None}
     return [{**common, "parameter": name, "truth": truth[name], "estimate": estimate[name],
-             "rel_error": abs(estimate[name] - truth[name]) / abs(truth[name])} for name in truth if name not in held]
+             "rel_error": abs(estimate[name] - truth[name]) / abs(truth[name]),
+             **({k: measured[name][k] for k in unmeasured} if name in measured else unmeasured)}
+            for name in truth if name not in held]
 
 
 RUN_LABELS = ("rung", "level", "loss", "dataset", "seed")

@@ -43,14 +43,15 @@ import numpy as np
 import pandas as pd
 
 from dpsi.datapoint import Datapoint
-from dpsi.losses import LOSSES, VALIDATION_METRICS, Targets, loss_by_name, validation_metrics
+from dpsi.losses import LOSSES, VALIDATION_METRICS, Targets, loss_terms_by_name, validation_metrics
 from dpsi.optim import Adam, screen_gradients, unusable
-from dpsi.parameters import IDENTIFIED, LEVEL1_FIXED, NAMES, Parameters, check_known, random_initial
+from dpsi.parameters import IDENTIFIED, LEVEL1_FIXED, LOWER, NAMES, UPPER, Parameters, check_known, clip, random_initial
 from dpsi.files import atomic_output
 from dpsi.output_folder import claimed
 from dpsi.progress import Progress
 from dpsi.provenance import library_checksum
 from dpsi.simulation import Scene, SimulationError, Simulator, SimulatorConfig
+from dpsi.uncertainty import LOG_STEP, Evaluation, UncertaintyError, assess
 
 LOG_FILE, SUMMARY_FILE, STATE_FILE = "log.csv", "summary.json", "state.json"
 STATE_VERSION = 2
@@ -100,27 +101,28 @@ def _nan_gradient() -> dict[str, float]:
 class TrainingPass(NamedTuple):
     """One pass over the training set at θ: the mean loss (mm) and screened mean gradient (mm per parameter
     unit; None if all were skipped) over the datapoints kept by the SPEC §6 rules, the number skipped, the
-    final particle positions (n, 3) in m of each datapoint whose simulation succeeded, keyed by ``id()`` of
-    the datapoint object (so that validating on the same objects needs no second simulation), and why each
-    skipped datapoint was skipped ("<id>: <cause>")."""
+    final particle positions (n, 3) in m and the loss's terms (mm, :class:`dpsi.losses.LossTerms`) of each
+    datapoint whose simulation succeeded, keyed by ``id()`` of the datapoint object (so that validating on the
+    same objects needs no second simulation), and why each skipped datapoint was skipped ("<id>: <cause>")."""
 
     loss_mm: float
     gradient: dict[str, float] | None
     skipped: int
     finals: dict[int, np.ndarray]
+    terms: dict[int, np.ndarray]
     causes: tuple[str, ...] = ()
 
 
 def training_gradient(simulator: Simulator, training: Sequence[Datapoint], params: Parameters,
                       loss: str) -> TrainingPass:
     """Simulate every training datapoint with ``params`` and back-propagate ``loss`` (see :class:`TrainingPass`)."""
-    loss_fn = loss_by_name(loss)
-    values, gradients, finals, causes = [], [], {}, []
+    loss_fn = loss_terms_by_name(loss)
+    values, gradients, finals, terms, causes = [], [], {}, {}, []
     for dp in training:
         try:
             final = simulator.forward(scene(dp), params)
             finals[id(dp)] = final
-            value, d_positions = loss_fn(final, targets(dp))
+            value, d_positions, terms[id(dp)] = loss_fn(final, targets(dp))
             gradient = simulator.backward(d_positions)
             cause = unusable(gradient, value)
         except SimulationError as err:
@@ -131,7 +133,7 @@ def training_gradient(simulator: Simulator, training: Sequence[Datapoint], param
     screened = screen_gradients(gradients, values)
     kept = [v for v, cause in zip(values, causes) if cause is None]
     return TrainingPass(float(np.mean(kept)) if kept else math.nan, screened.gradient, screened.skipped, finals,
-                        tuple(f"{dp.id}: {cause}" for dp, cause in zip(training, causes) if cause))
+                        terms, tuple(f"{dp.id}: {cause}" for dp, cause in zip(training, causes) if cause))
 
 
 def validation(simulator: Simulator, datapoints: Sequence[Datapoint], params: Parameters,
@@ -148,6 +150,26 @@ def validation(simulator: Simulator, datapoints: Sequence[Datapoint], params: Pa
             pass
     means = {m: float(np.mean([r[m] for r in rows])) if rows else math.nan for m in METRICS}
     return means, len(datapoints) - len(rows)
+
+
+def uncertainty_at(simulator: Simulator, training: Sequence[Datapoint], params: Parameters, loss: str,
+                   free: Sequence[str], step: float = LOG_STEP) -> dict:
+    """The :func:`dpsi.uncertainty.assess` block of the training ``loss`` at ``params`` over the ``free``
+    parameters (central-difference ``step`` in log units): two gradient passes over the training set per free
+    parameter beside the one at ``params``;
+    raises :class:`~dpsi.uncertainty.UncertaintyError` if a simulation or gradient fails on the way."""
+    def evaluate(x: np.ndarray) -> Evaluation:
+        at = params.replace(**clip({n: math.exp(v) for n, v in zip(free, x)}))
+        trained = training_gradient(simulator, training, at, loss)
+        if trained.gradient is None or trained.skipped:
+            raise UncertaintyError(f"{trained.skipped} training datapoint(s) failed at {at.as_dict()}")
+        return Evaluation(trained.loss_mm, np.array([trained.gradient[n] * getattr(at, n) for n in free]),
+                          tuple(trained.terms[id(dp)] for dp in training))
+
+    start = time.perf_counter()
+    log = lambda bounds: [math.log(bounds[n]) for n in free]  # noqa: E731
+    block = assess(free, log(params.as_dict()), log(LOWER), log(UPPER), evaluate, step)
+    return {**block, "wall_s": time.perf_counter() - start}
 
 
 def check_run(level: int, loss: str, training: Sequence[Datapoint], validation_set: Sequence[Datapoint],
@@ -341,10 +363,11 @@ def _resume(path: Path, fingerprint: dict, key: str, fresh: Callable[[], Adam], 
         return fresh(), []
 
 
-def _save_state(path: Path, fingerprint: dict, key: str, adam: Adam, rows: list[dict]) -> None:
+def _save_state(path: Path, fingerprint: dict, key: str, adam: Adam, rows: list[dict],
+                uncertainty: dict | None = None) -> None:
+    state = {"version": STATE_VERSION, "run": fingerprint, "inputs": key, "adam": adam.state(), "log": rows}
     with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps({"version": STATE_VERSION, "run": fingerprint, "inputs": key,
-                                   "adam": adam.state(), "log": rows}))
+        tmp.write_text(json.dumps(state if uncertainty is None else {**state, "uncertainty": uncertainty}))
 
 
 def _row(k: int, params: Parameters, loss_mm: float, gradient: dict, skipped: int,
@@ -396,7 +419,8 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
              initial: Parameters | None = None, truth: Parameters | None = None,
              simulator: Simulator | None = None, progress: TextIO | None = None,
              restart_if_different: bool = False, labels: Mapping | None = None,
-             known: Mapping[str, float] | None = None, select: str = "validation") -> dict:
+             known: Mapping[str, float] | None = None, select: str = "validation",
+             uncertainty: bool = False) -> dict:
     """Run (or resume) an identification into ``out_dir`` and return its summary (see module doc).
 
     ``initial``: the starting θ (default random from ``seed`` in the level's ranges; at level 1 its frictions
@@ -410,6 +434,8 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
     σ_y by one factor changes no motion, so a measured ρ is what makes E and σ_y identifiable). A validation
     datapoint that is the same object as a training one is validated on its training simulation.
     ``select``: how the best iteration is chosen (:data:`SELECT_COLUMNS`); it changes only the summary.
+    ``uncertainty``: add what the data determine at the best iteration (:func:`uncertainty_at`, kept in the
+    state, so that a finished run asked again does not measure it again) as the summary's ``uncertainty``.
     """
     _select_column(select)
     config = simulator.config if simulator is not None else SimulatorConfig()
@@ -450,11 +476,25 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
         with atomic_output(out_dir / LOG_FILE) as tmp:
             pd.DataFrame(rows, columns=list(COLUMNS)).to_csv(tmp, index=False)
         summary = summarise(rows, fingerprint, iterations, truth, labels, select)
+        if uncertainty and summary["best"] is not None:
+            block = (_load_state(state_file, fingerprint, key) or {}).get("uncertainty")
+            if not block or block["iteration"] != summary["best"]["iteration"]:
+                bar.message(f"measuring what the data determine at iteration {summary['best']['iteration']}")
+                block = {"iteration": summary["best"]["iteration"]}
+                try:
+                    block.update(uncertainty_at(simulator or Simulator(config), training,
+                                                Parameters.checked(**summary["best"]["parameters"]), loss,
+                                                [n for n in IDENTIFIED[level] if n not in held]))
+                except (UncertaintyError, SimulationError) as err:
+                    block["error"] = str(err)
+                _save_state(state_file, fingerprint, key, adam, rows, block)
+            summary["uncertainty"] = block
         with atomic_output(out_dir / SUMMARY_FILE) as tmp:
             tmp.write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
 
 __all__ = ["LOG_FILE", "SUMMARY_FILE", "STATE_FILE", "METRICS", "COLUMNS", "SELECT_COLUMNS", "IdentificationError",
-           "scene", "targets", "inputs_key", "evaluate", "TrainingPass", "training_gradient", "validation", "check_run",
+           "scene", "targets", "inputs_key", "evaluate", "TrainingPass", "training_gradient", "validation", "uncertainty_at",
+           "check_run",
            "hold_known", "summarise", "identify"]

@@ -51,25 +51,45 @@ def _pair_gradient(sim: np.ndarray, sim_index: np.ndarray, target_points: np.nda
     return gradient
 
 
-def chamfer(sim, target) -> LossResult:
-    """Chamfer distance Σ_sim min_target |x − y| + Σ_target min_sim |x − y| in mm (SPEC §5)."""
+class LossTerms(NamedTuple):
+    """A loss as the sum of its terms: the value (mm), its gradient (n, 3) in mm/m, and the terms (mm), one
+    per unit the distance sums over (a point, or a height-map cell), in an order fixed by the simulated and
+    target sets' sizes, so that the terms of two simulations of one datapoint pair up unit by unit."""
+
+    value: float
+    gradient: np.ndarray
+    terms: np.ndarray
+
+
+def _not_finite_terms(sim, units: int) -> LossTerms:
+    return LossTerms(*_not_finite(sim), np.full(units, np.nan))
+
+
+def chamfer_terms(sim, target) -> LossTerms:
+    """:func:`chamfer` with its terms: each simulated point's distance to the target, then each target
+    point's distance to the simulation."""
     checked = _checked(sim, target)
     if checked is None:
-        return _not_finite(sim)
+        return _not_finite_terms(sim, len(sim) + len(target))
     sim, target = checked
     to_target, nearest_target = cKDTree(target).query(sim)
     to_sim, nearest_sim = cKDTree(sim).query(target)
     gradient = (_pair_gradient(sim, np.arange(len(sim)), target[nearest_target])
                 + _pair_gradient(sim, nearest_sim, target))
-    return float((to_target.sum() + to_sim.sum()) * MM_PER_M), gradient
+    return LossTerms(float((to_target.sum() + to_sim.sum()) * MM_PER_M), gradient,
+                     np.concatenate([to_target, to_sim]) * MM_PER_M)
 
 
-def earth_movers(sim, target) -> LossResult:
-    """Earth mover's distance Σ_target |t − φ(t)| in mm, φ the optimal one-to-one assignment
-    of the target points to simulated points (needs no more target than simulated points)."""
+def chamfer(sim, target) -> LossResult:
+    """Chamfer distance Σ_sim min_target |x − y| + Σ_target min_sim |x − y| in mm (SPEC §5)."""
+    return chamfer_terms(sim, target)[:2]
+
+
+def earth_movers_terms(sim, target) -> LossTerms:
+    """:func:`earth_movers` with its terms: each target point's distance to its assigned simulated point."""
     checked = _checked(sim, target)
     if checked is None:
-        return _not_finite(sim)
+        return _not_finite_terms(sim, len(target))
     sim, target = checked
     if len(target) > len(sim):
         raise ValueError(
@@ -78,7 +98,14 @@ def earth_movers(sim, target) -> LossResult:
         )
     cost = cdist(target, sim)
     rows, cols = linear_sum_assignment(cost)
-    return float(cost[rows, cols].sum() * MM_PER_M), _pair_gradient(sim, cols, target[rows])
+    return LossTerms(float(cost[rows, cols].sum() * MM_PER_M), _pair_gradient(sim, cols, target[rows]),
+                     cost[rows, cols] * MM_PER_M)
+
+
+def earth_movers(sim, target) -> LossResult:
+    """Earth mover's distance Σ_target |t − φ(t)| in mm, φ the optimal one-to-one assignment
+    of the target points to simulated points (needs no more target than simulated points)."""
+    return earth_movers_terms(sim, target)[:2]
 
 
 class HeightMapTarget(NamedTuple):
@@ -101,31 +128,43 @@ def simulated_heightmap(sim, target: HeightMapTarget) -> np.ndarray:
                       particle_size=target.particle_size)
 
 
+def heightmap_loss_terms(sim, target: HeightMapTarget) -> LossTerms:
+    """:func:`heightmap_loss` with its terms: each counted cell's |simulated − target| height in mm, in
+    row-major cell order."""
+    sim = check_points(sim, "simulated points", finite=False)
+    heights = np.asarray(target.heights, dtype=float)
+    if heights.ndim != 2 or heights.shape[0] != heights.shape[1]:
+        raise ValueError(f"target height map must be square (cells, cells), got {heights.shape}")
+    counted = np.ones(heights.shape, bool) if target.cells is None else np.asarray(target.cells, bool)
+    if counted.shape != heights.shape:
+        raise ValueError(f"height-map cells mask has shape {counted.shape}, the map {heights.shape}")
+    if not np.isfinite(sim).all():
+        return _not_finite_terms(sim, int(counted.sum()))
+    owners = height_map_owners(sim, target.centre_xy, cells=heights.shape[0], particle_size=target.particle_size)
+    simulated = owned_heights(sim, owners, target.floor, target.particle_size)
+    filled = (owners >= 0) & counted
+    gradient = np.zeros_like(sim)
+    np.add.at(gradient[:, 2], owners[filled], np.sign(simulated[filled] - heights[filled]) * MM_PER_M)
+    return LossTerms(heightmap_distance_mm(simulated[counted], heights[counted]), gradient,
+                     np.abs(simulated[counted] - heights[counted]) * MM_PER_M)
+
+
 def heightmap_loss(sim, target: HeightMapTarget) -> LossResult:
     """Height-map distance (mm) of the particles to a real height map, over the target's ``cells`` (all
     by default); the gradient of each counted cell goes to the z of the particle holding that cell's
     highest z (SPEC §3.5, §7.7), summed over the cells a particle holds."""
-    sim = check_points(sim, "simulated points", finite=False)
-    if not np.isfinite(sim).all():
-        return _not_finite(sim)
-    heights = np.asarray(target.heights, dtype=float)
-    if heights.ndim != 2 or heights.shape[0] != heights.shape[1]:
-        raise ValueError(f"target height map must be square (cells, cells), got {heights.shape}")
-    owners = height_map_owners(sim, target.centre_xy, cells=heights.shape[0], particle_size=target.particle_size)
-    simulated = owned_heights(sim, owners, target.floor, target.particle_size)
-    counted = np.ones(heights.shape, bool) if target.cells is None else np.asarray(target.cells, bool)
-    if counted.shape != heights.shape:
-        raise ValueError(f"height-map cells mask has shape {counted.shape}, the map {heights.shape}")
-    filled = (owners >= 0) & counted
-    gradient = np.zeros_like(sim)
-    np.add.at(gradient[:, 2], owners[filled], np.sign(simulated[filled] - heights[filled]) * MM_PER_M)
-    return heightmap_distance_mm(simulated[counted], heights[counted]), gradient
+    return heightmap_loss_terms(sim, target)[:2]
+
+
+def neg_heightmap_loss_terms(sim, target: HeightMapTarget) -> LossTerms:
+    """:func:`neg_heightmap_loss` with its terms (each cell's negated distance)."""
+    value, gradient, terms = heightmap_loss_terms(sim, target)
+    return LossTerms(-value, -gradient, -terms)
 
 
 def neg_heightmap_loss(sim, target: HeightMapTarget) -> LossResult:
     """The negated height-map distance (SPEC appendix A), in mm."""
-    value, gradient = heightmap_loss(sim, target)
-    return -value, -gradient
+    return neg_heightmap_loss_terms(sim, target)[:2]
 
 
 @dataclass(frozen=True)
@@ -140,32 +179,44 @@ class Targets:
     heightmap_interior: HeightMapTarget | None = None
 
 
-_REGISTRY: dict[str, tuple[Callable[..., LossResult], str]] = {
-    # name: (distance, Targets field it is measured against)
-    "pcd_cd": (chamfer, "pcd"),
-    "prt_cd": (chamfer, "prt"),
-    "pcd_emd": (earth_movers, "pcd"),
-    "prt_emd": (earth_movers, "prt"),
-    "heightmap": (heightmap_loss, "heightmap"),
-    "neg_heightmap": (neg_heightmap_loss, "heightmap"),
-    "heightmap_interior": (heightmap_loss, "heightmap_interior"),
+_REGISTRY: dict[str, tuple[Callable[..., LossTerms], str]] = {
+    # name: (distance with its terms, Targets field it is measured against)
+    "pcd_cd": (chamfer_terms, "pcd"),
+    "prt_cd": (chamfer_terms, "prt"),
+    "pcd_emd": (earth_movers_terms, "pcd"),
+    "prt_emd": (earth_movers_terms, "prt"),
+    "heightmap": (heightmap_loss_terms, "heightmap"),
+    "neg_heightmap": (neg_heightmap_loss_terms, "heightmap"),
+    "heightmap_interior": (heightmap_loss_terms, "heightmap_interior"),
 }
 
 LOSSES = _REGISTRY.keys()
 """Names of the training losses: a set-like view in the order above."""
 
 
-def loss_by_name(name: str) -> Callable[[np.ndarray, Targets], LossResult]:
-    """The loss ``name`` as a function ``(sim_points (n, 3) in m, targets) -> (mm, gradient mm/m)``."""
+def loss_terms_by_name(name: str) -> Callable[[np.ndarray, Targets], LossTerms]:
+    """The loss ``name`` as a function ``(sim_points (n, 3) in m, targets) -> LossTerms`` (value in mm,
+    gradient in mm/m and the terms it sums)."""
     if name not in _REGISTRY:
         raise ValueError(f"unknown loss {name!r}; known losses are {list(LOSSES)}")
     distance, field = _REGISTRY[name]
 
-    def loss(sim_points, targets: Targets) -> LossResult:
+    def loss(sim_points, targets: Targets) -> LossTerms:
         target = getattr(targets, field)
         if target is None:
             raise ValueError(f"loss {name!r} needs the {field!r} target, which is missing")
         return distance(sim_points, target)
+
+    loss.__name__ = name
+    return loss
+
+
+def loss_by_name(name: str) -> Callable[[np.ndarray, Targets], LossResult]:
+    """The loss ``name`` as a function ``(sim_points (n, 3) in m, targets) -> (mm, gradient mm/m)``."""
+    with_terms = loss_terms_by_name(name)
+
+    def loss(sim_points, targets: Targets) -> LossResult:
+        return with_terms(sim_points, targets)[:2]
 
     loss.__name__ = name
     return loss
@@ -208,7 +259,8 @@ def bench_emd(n: int = 3000, seed: int = 0) -> dict[str, float]:
 
 
 __all__ = [
-    "LossResult", "chamfer", "earth_movers", "HeightMapTarget", "simulated_heightmap", "heightmap_loss",
-    "neg_heightmap_loss", "Targets", "LOSSES", "loss_by_name", "VALIDATION_METRICS", "validation_metrics",
+    "LossResult", "LossTerms", "chamfer", "chamfer_terms", "earth_movers", "earth_movers_terms", "HeightMapTarget",
+    "simulated_heightmap", "heightmap_loss", "heightmap_loss_terms", "neg_heightmap_loss", "neg_heightmap_loss_terms",
+    "Targets", "LOSSES", "loss_terms_by_name", "loss_by_name", "VALIDATION_METRICS", "validation_metrics",
     "bench_sets", "bench_emd",
 ]

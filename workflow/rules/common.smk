@@ -338,6 +338,10 @@ TABLES = [
     "ood_heightmap",
     "recovery_error",
 ]
+UNCERTAINTY = IDENT.get("uncertainty", False)
+"""Whether the main sweep's runs measure what their data determine (dpsi.uncertainty): uncertainty.csv and figure."""
+if UNCERTAINTY:
+    TABLES.append("uncertainty")
 OOD_SOURCES = [f"{RESULTS}/ood/hand-picked.json"] + expand(
     f"{RESULTS}/ood/{{loss}}/{{dataset}}.json",
     loss=IDENT["losses"],

@@ -103,6 +103,7 @@ if "identifiability" in ANALYSES:
             initial=LADDER["initial"],
             known=LADDER.get("known", {}),
             select=lambda w: run_selection(w.dataset),
+            uncertainty=LADDER.get("uncertainty", True),
             simulator=simulator_params(),
 
     rule ladder_same_target:
@@ -167,6 +168,17 @@ if "identifiability" in ANALYSES:
         output:
             table=table_files("{ladder}", "../report/identifiability.rst"),
             figure=figure_files("{ladder}", "../report/identifiability_figure.rst"),
+            uncertainty=(
+                table_files(
+                    "{ladder}_uncertainty", "../report/identifiability_uncertainty.rst"
+                )
+                + table_files("{ladder}_coverage", "../report/coverage.rst")
+                + figure_files(
+                    "{ladder}_uncertainty", "../report/uncertainty_figure.rst"
+                )
+                if LADDER_UNCERTAINTY
+                else []
+            ),
         log:
             log_file("{ladder}"),
         wildcard_constraints:

@@ -38,6 +38,7 @@ rule identify:
         initial=IDENT.get("initial", "random"),
         known=IDENT.get("known", {}),
         select="validation",
+        uncertainty=IDENT.get("uncertainty", False),
         simulator=simulator_params(),
     script:
         "../scripts/identify.py"
@@ -80,6 +81,7 @@ if RUN_ANALYSES:
             initial=lambda w: w.start,
             known={},
             select="validation",
+            uncertainty=False,
             simulator=simulator_params(),
 
 

@@ -122,14 +122,35 @@ if "identifiability" in ANALYSES:
                 in_table_runs
             )
 
+    LADDER_UNCERTAINTY = LADDER.get("uncertainty", True)
+    """Whether the ladder's runs measure what their data determine (dpsi.uncertainty)."""
+
+    def ladder_tables(name):
+        """A ladder's tables: its runs, and with uncertainty their intervals and the intervals' coverage of
+        the truth."""
+        files = table_files(name, "../report/identifiability.rst")
+        if LADDER_UNCERTAINTY:
+            files += table_files(
+                f"{name}_uncertainty", "../report/identifiability_uncertainty.rst"
+            )
+            files += table_files(f"{name}_coverage", "../report/coverage.rst")
+        return files
+
+    def ladder_figures(name):
+        """A ladder's figures: the recovery errors, and with uncertainty the intervals."""
+        files = figure_files(name, "../report/identifiability_figure.rst")
+        if LADDER_UNCERTAINTY:
+            files += figure_files(
+                f"{name}_uncertainty", "../report/uncertainty_figure.rst"
+            )
+        return files
+
     def ladder_outputs(name):
-        return table_files(name, "../report/identifiability.rst") + figure_files(
-            name, "../report/identifiability_figure.rst"
-        )
+        return ladder_tables(name) + ladder_figures(name)
 
     TABLES_LADDER = list(LADDER_TABLES)[-1]
-    ANALYSIS_TABLES += ladder_outputs(TABLES_LADDER)[:3]
-    ANALYSIS_FIGURES += ladder_outputs(TABLES_LADDER)[3:]
+    ANALYSIS_TABLES += ladder_tables(TABLES_LADDER)
+    ANALYSIS_FIGURES += ladder_figures(TABLES_LADDER)
 
     def bias_datapoints():
         """The level-1 training datapoints of the ladder's datasets (the sources of bias are per datapoint)."""

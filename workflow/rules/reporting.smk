@@ -43,6 +43,11 @@ rule make_figures:
             for i in (ood_ids() if OOD else [])
             for f in figure_files(f"{kind}_{i}", f"../report/{kind}.rst")
         ],
+        uncertainty=(
+            figure_files("uncertainty", "../report/uncertainty_figure.rst")
+            if UNCERTAINTY
+            else []
+        ),
     log:
         log_file("figures"),
     conda:

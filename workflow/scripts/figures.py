@@ -1,6 +1,7 @@
 """Figures: validation metrics and parameters over iterations per level; height maps and particles of
 the out-of-distribution datapoints simulated with the first (loss, dataset)'s best parameters, and their
-frames along the trajectory next to the hand-picked parameters' and the real captures."""
+frames along the trajectory next to the hand-picked parameters' and the real captures; with uncertainty, the runs'
+intervals."""
 
 import json
 from pathlib import Path
@@ -9,11 +10,15 @@ import numpy as np
 
 from dpsi.datapoint import load_datapoint
 from dpsi.provenance import recorded
-from dpsi.reporting import figures, frames
+from dpsi.reporting import figures, frames, tables
 from dpsi.reporting.runs import load_runs
 
 with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakemake.log[0]):
-    _, runs = load_runs(snakemake.input.summaries, snakemake.input.logs)
+    summaries, runs = load_runs(snakemake.input.summaries, snakemake.input.logs)
+    if snakemake.output.uncertainty:
+        figures.plot_intervals(tables.uncertainty_table(summaries), *snakemake.output.uncertainty,
+                               "Estimates of the main sweep's runs and their intervals (solid: determined; dotted: "
+                               "reaches a bound)")
     pngs = [p for p in snakemake.output.runs if p.endswith(".png")]
     for png in pngs:
         level = int(Path(png).stem.split("_L")[1])

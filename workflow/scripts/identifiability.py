@@ -1,4 +1,5 @@
-"""Identifiability ladder table and figure: recovered parameters and their errors per rung, loss and seed."""
+"""Identifiability ladder table and figure: recovered parameters and their errors per rung, loss and seed; with the
+runs' uncertainty, their intervals (table and figure) and how often those of determined quantities hold the truth."""
 
 import json
 
@@ -6,6 +7,7 @@ from dpsi.identifiability import ladder_table
 from dpsi.provenance import recorded
 from dpsi.reporting import figures, tables
 from dpsi.reporting.runs import load_runs
+from dpsi.uncertainty import coverage
 
 out, p = snakemake.output, snakemake.params
 with recorded(out, snakemake.input, dict(p), snakemake.log[0]):
@@ -17,3 +19,12 @@ with recorded(out, snakemake.input, dict(p), snakemake.log[0]):
                        "rung (R0 same model, R1 reconstructed, R2 finer twin), loss and seed; losses and "
                        "distances in mm")
     figures.plot_recovery(table, *out.figure)
+    if out.uncertainty:
+        intervals = tables.uncertainty_table(summaries)
+        tables.write_table(intervals, out.uncertainty[0], "What each ladder run's data determine: per quantity the "
+                           "estimate, its interval (low–high; not determined where it reaches a bound of the range) and "
+                           "the truth")
+        tables.write_table(coverage(intervals), out.uncertainty[3], "Coverage of the truth by the intervals marked "
+                           "determined, per rung and quantity, and their median ×/÷ factor")
+        figures.plot_intervals(intervals, *out.uncertainty[6:8], "Identifiability ladder: estimates and intervals "
+                               "(solid: determined; dotted: reaches a bound) and the truth (×)")

@@ -23,4 +23,4 @@ with recorded(snakemake.output, snakemake.input, dict(snakemake.params), snakema
         validation, seed=int(w.seed), iterations=p.iterations,
         initial=HAND_PICKED if p.initial == "hand-picked" else None, truth=truth,
         simulator=Simulator(SimulatorConfig(**p.simulator)), progress=sys.stderr, restart_if_different=True,
-        labels=labels, known=p.known, select=p.select)
+        labels=labels, known=p.known, select=p.select, uncertainty=p.uncertainty)

@@ -248,5 +248,46 @@ def plot_recovery(table: pd.DataFrame, png_path: str | Path, pdf_path: str | Pat
     save(fig, png_path, pdf_path)
 
 
+def plot_intervals(table: pd.DataFrame, png_path: str | Path, pdf_path: str | Path, title: str) -> None:
+    """What each run's data determine: one panel per parameter and ratio (not the principal directions, whose
+    names differ by run), one line per run with its estimate (dot) and interval (bar: solid where determined,
+    dotted grey where it reaches a bound of the range, i.e. not determined) on a log axis, and the truth (black
+    cross) where known. ``table`` has the columns of uncertainty.csv."""
+    missing = [c for c in ("level", "loss", "dataset", "seed", "quantity", "estimate", "low", "high", "determined",
+                           "truth") if c not in table.columns]
+    shown = table[~table["quantity"].str.contains("^", regex=False)] if not missing else table
+    if missing or shown.empty:
+        raise ValueError(f"uncertainty table is empty or lacks column(s) {missing}: nothing to plot")
+    names = list(dict.fromkeys(shown["quantity"]))
+    run_keys = [k for k in ("rung", "level", "loss", "dataset", "seed") if k in shown.columns]
+    runs = list(dict.fromkeys(shown[run_keys].itertuples(index=False, name=None)))
+    fig = new_figure(1.0 + 2.4 * len(names), 1.4 + 0.28 * len(runs))
+    axes = fig.subplots(1, len(names), sharey=True, squeeze=False)[0]
+    for ax, name in zip(axes, names):
+        mine = shown[shown["quantity"] == name]
+        for y, run in enumerate(runs):
+            row = mine[np.logical_and.reduce([mine[k] == v for k, v in zip(run_keys, run)])]
+            if row.empty:
+                continue
+            r = row.iloc[0]
+            determined = bool(r["determined"])
+            ax.plot([r["low"], r["high"]], [y, y], color="C0" if determined else "grey",
+                    linestyle="-" if determined else ":", linewidth=2.0 if determined else 1.2)
+            ax.plot(r["estimate"], y, "o", color="C0" if determined else "grey", markersize=4)
+            if pd.notna(r["truth"]):
+                ax.plot(r["truth"], y, "x", color="black", markersize=6)
+        ax.set_xscale("log")
+        ax.set_title(PARAMETER_AXES[name][0].split(" (")[0] if name in PARAMETER_AXES else name, fontsize=9)
+        ax.grid(alpha=0.3, which="both", axis="x")
+    axes[0].set_yticks(range(len(runs)), [" ".join(str(v) for v in run) for run in runs], fontsize=7)
+    axes[0].invert_yaxis()
+    handles = [Line2D([], [], color="C0", marker="o", label="determined"),
+               Line2D([], [], color="grey", linestyle=":", marker="o", label="not determined (reaches a bound)"),
+               Line2D([], [], color="black", marker="x", linestyle="", label="truth")]
+    fig.legend(handles=handles, loc="outside lower center", ncols=3, frameon=False, fontsize=8)
+    fig.suptitle(textwrap.fill(title, width=int(TITLE_CHARS_PER_INCH * fig.get_figwidth())))
+    save(fig, png_path, pdf_path)
+
+
 __all__ = ["DPI", "METRIC_LABELS", "PARAMETER_AXES", "new_figure", "save", "plot_runs", "plot_heightmaps",
-           "plot_particles", "plot_recovery"]
+           "plot_particles", "plot_recovery", "plot_intervals"]

@@ -6,8 +6,11 @@ File names and CSV columns are an interface that other tools read:
 - ``parameters.csv``: parameter, unit, min, max, step_level1, step_level2, hand_picked
 - ``best_params.csv``: level, loss, dataset, E, nu, rho, yield_stress, mu_table, mu_effector,
   val_heightmap_mm, hand_picked_mm, no_motion_mm, recommended, at_bound (plus rows with dataset = "average" per loss,
-  and loss = "hand-picked")
+  and loss = "hand-picked"), then the interval <parameter>_low, <parameter>_high of each parameter the run
+  measured it for (:mod:`dpsi.uncertainty`)
 - ``generalisation.csv``: level, loss, dataset, seed, pair, identified_mm, hand_picked_mm, no_motion_mm, change
+- ``uncertainty.csv``: rung, level, loss, dataset, seed, quantity, estimate, low, high, determined, truth (rung
+  and truth empty where they do not apply)
 - ``ood_heightmap.csv``: motion, config, loss, dataset, heightmap_mm (plus loss = "hand-picked" rows
   and "average" rows)
 - ``recovery_error.csv``: level, loss, dataset, seed, parameter (and E/rho, yield_stress/E), truth, estimate, rel_error
@@ -31,6 +34,7 @@ from ..motions import MOTIONS, plan, resample
 from ..losses import VALIDATION_METRICS
 from ..parameters import HAND_PICKED, IDENTIFIED, LOWER, NAMES, STEP_SIZE, UNITS, UPPER, at_bound, hand_picked, scale_free
 from ..files import atomic_output
+from ..uncertainty import true_value
 from ..generalisation import DECIDING_METRIC
 
 HAND_PICKED_LABEL = "hand-picked"
@@ -71,6 +75,8 @@ def best_params_table(summaries: list[dict], baselines: Mapping[tuple[int, str],
     ``recommended`` marks one row per level (level → (loss, dataset, seed), :func:`dpsi.generalisation.recommend`).
     Column ``at_bound`` names each identified parameter that ends exactly on a bound of its range
     (``E=upper; nu=lower``): clipping put it there, and the data may want a value outside the range.
+    The intervals of the parameters whose run measured them follow (:data:`INTERVAL_COLUMNS`, only those some
+    run has).
 
     ``summaries``: run summaries (identification ``summary.json``) with keys level, loss, dataset;
     ``baselines``: (level, datapoint id) → :func:`dpsi.generalisation.baseline` record."""
@@ -91,9 +97,10 @@ def best_params_table(summaries: list[dict], baselines: Mapping[tuple[int, str],
                          hand_picked_mm=baseline_mm(level, ids, "hand_picked"),
                          no_motion_mm=baseline_mm(level, ids, "no_motion"),
                          recommended=recommended.get(level, (None,) * 3)[:2] == (loss, dataset)
-                         and recommended[level][2] == run["seed"], at_bound=_at_bound_label(run)))
+                         and recommended[level][2] == run["seed"], at_bound=_at_bound_label(run),
+                         **_parameter_intervals(run)))
     columns = ["level", "loss", "dataset", *NAMES, "val_heightmap_mm", "hand_picked_mm", "no_motion_mm"]
-    table = pd.DataFrame(rows, columns=[*columns, "recommended", "at_bound"])
+    table = pd.DataFrame(rows, columns=[*columns, "recommended", "at_bound", *INTERVAL_COLUMNS])
     averages = (table.groupby(["level", "loss"], sort=False)[columns[3:]].mean().reset_index()
                 .assign(dataset=AVERAGE_LABEL, recommended=False, at_bound=""))
     baseline = pd.DataFrame([dict(level=level, loss=HAND_PICKED_LABEL, dataset="", **hand_picked(level).as_dict(),
@@ -102,8 +109,35 @@ def best_params_table(summaries: list[dict], baselines: Mapping[tuple[int, str],
                                   no_motion_mm=baseline_mm(level, ids, "no_motion"), recommended=False,
                                   at_bound="")
                              for level, ids in sorted(validated.items())])
+    measured = [c for c in table.columns if c not in INTERVAL_COLUMNS or table[c].notna().any()]
     return (pd.concat([table, averages, baseline], ignore_index=True)
-            .sort_values(["level"], kind="stable")[table.columns].reset_index(drop=True))
+            .sort_values(["level"], kind="stable")[measured].reset_index(drop=True))
+
+
+INTERVAL_COLUMNS = tuple(f"{n}_{end}" for n in NAMES for end in ("low", "high"))
+"""best_params.csv's interval columns (SI units; empty where the run did not measure one)."""
+
+
+def _parameter_intervals(summary: dict) -> dict[str, float]:
+    """The interval of each parameter in ``summary``'s uncertainty block, as :data:`INTERVAL_COLUMNS`."""
+    measured = {q["quantity"]: q for q in (summary.get("uncertainty") or {}).get("quantities", [])}
+    return {f"{n}_{end}": measured[n][end] if n in measured else math.nan for n in NAMES for end in ("low", "high")}
+
+
+UNCERTAINTY_COLUMNS = ("rung", "level", "loss", "dataset", "seed", "quantity", "estimate", "low", "high", "determined",
+                       "truth")
+
+
+def uncertainty_table(summaries: list[dict]) -> pd.DataFrame:
+    """What each run's data determine (:mod:`dpsi.uncertainty`): one row per run and quantity of its uncertainty
+    block, with the quantity's value at the run's truth where the summary has one. ``rung`` is empty for runs
+    that are not on the identifiability ladder, ``truth`` for runs with no known truth."""
+    rows = [dict(rung=s.get("rung", ""), level=s["level"], loss=s["loss"], dataset=s["dataset"], seed=s["seed"],
+                 quantity=q["quantity"], estimate=q["estimate"], low=q["low"], high=q["high"],
+                 determined=q["determined"],
+                 truth=true_value(q["exponents"], s["truth"]) if s.get("truth") else math.nan)
+            for s in summaries for q in (s.get("uncertainty") or {}).get("quantities", [])]
+    return pd.DataFrame(rows, columns=list(UNCERTAINTY_COLUMNS))
 
 
 def _at_bound_label(summary: dict | None) -> str:
