@@ -27,6 +27,17 @@ def shared(relative: str) -> Path:
     return path
 
 
+LONGEST_FIRST = ("test_workflow", "test_real_workflow")
+"""The test files that run whole workflows (the tiny twin's; the real clay's smoke), started first so that the
+other workers are not left waiting for them at the end."""
+
+
+def pytest_collection_modifyitems(items):
+    items.sort(key=lambda item: (LONGEST_FIRST.index(item.module.__name__)
+                                 if getattr(item, "module", None) and item.module.__name__ in LONGEST_FIRST
+                                 else len(LONGEST_FIRST)))
+
+
 def pytest_xdist_auto_num_workers(config):
     """``-n auto``: one worker per core, at most four (each holds a simulator of up to a few GB)."""
     return max(1, min(4, os.cpu_count() or 1))
@@ -41,7 +52,7 @@ def snakemake(workdir, *args, config=TINY):
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory):
     """`tables` and `figures` (the analyses included) on the tiny twin, every job submitted through the
-    generic cluster executor, so that nothing can rely on shared process state. Made once per test session:
+    generic cluster executor, two at a time, so that nothing can rely on shared process state. Made once per test session:
     pytest-xdist's workers share it (the first to need it makes it, under a lock). With the environment
     variable DPSI_TINY_RUN set to a folder, the run completes that folder instead of a new one (for working
     on one analysis without rerunning the rest)."""
@@ -62,6 +73,6 @@ def tiny_run(tmp_path_factory):
 
 def _complete_tiny_run(workdir: Path) -> Path:
     run = snakemake(workdir, "--executor", "cluster-generic", "--cluster-generic-submit-cmd", "bash",
-                    "--jobs", "1", "--latency-wait", "5", "--seconds-between-status-checks", "1", "tables", "figures")
+                    "--jobs", "2", "--latency-wait", "5", "--seconds-between-status-checks", "1", "tables", "figures")
     assert run.returncode == 0, (run.stdout + run.stderr)[-4000:]
     return workdir

@@ -222,7 +222,7 @@ def test_tiny_workflow_makes_every_table(tiny_run):
     assert best.drop(columns=["dataset", "at_bound", *intervals]).notna().all().all()
     assert (best.val_heightmap_mm > 0).all()
     # the intervals of what each run identified (level 1 holds the frictions), holding its estimate
-    for row in best[best.loss == "prt_cd"].itertuples():
+    for row in best[(best.loss == "prt_cd") & (best.dataset != "average")].itertuples():
         for n in names[:4] if row.level == 1 else names:
             assert getattr(row, f"{n}_low") <= getattr(row, n) <= getattr(row, f"{n}_high"), (row.level, n)
     hand = best[best.loss == "hand-picked"].set_index("level")
