@@ -299,8 +299,12 @@ def test_a_users_raw_dataset_is_only_read_by_a_full_run(tiny_run, tmp_path):
     raw = tmp_path / "raw" / "mine"
     shutil.copytree(tiny_run / "results" / "twin-tiny" / "raw", raw, ignore=shutil.ignore_patterns("truth.json"))
     before = _checksums(tmp_path / "raw")
-    config = edited_config(tmp_path, lambda c: c.pop("analyses"))
-    run = snakemake(tmp_path, "-j1", "tables", "--config", "dataset=mine", config=config)
+    def users_config(c):  # no analyses and no intervals (tested on the tiny run): the identification only
+        c.pop("analyses")
+        c["identification"]["uncertainty"] = False
+
+    config = edited_config(tmp_path, users_config)
+    run = snakemake(tmp_path, "-j2", "tables", "--config", "dataset=mine", config=config)
     assert run.returncode == 0, (run.stdout + run.stderr)[-3000:]
     assert _checksums(tmp_path / "raw") == before
     assert (tmp_path / "results" / "mine" / "tables" / "best_params.csv").is_file()
