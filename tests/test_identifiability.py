@@ -74,6 +74,20 @@ def test_rung_0_recovers_young_modulus_and_yield_stress_from_50_percent_off(rung
     assert summary["relative_error"]["yield_stress"] < 0.10
 
 
+def _leaves(summary: dict, left_out) -> dict:
+    """The numbers and strings of a run summary, keyed by their path (``best/parameters/E``)."""
+    def walk(value, path):
+        if isinstance(value, dict):
+            for key, item in value.items():
+                yield from walk(item, f"{path}/{key}")
+        elif isinstance(value, list):
+            for k, item in enumerate(value):
+                yield from walk(item, f"{path}/{k}")
+        else:
+            yield path, value
+    return dict(item for key, value in summary.items() if key not in left_out for item in walk(value, key))
+
+
 def test_on_rung_0_each_pcd_loss_runs_exactly_as_its_prt_loss_so_its_run_is_relabelled(rung0, tmp_path):
     simulator, training, validation = rung0
     start = TRUTH.replace(E=0.5 * TRUTH.E, yield_stress=1.5 * TRUTH.yield_stress)
@@ -85,13 +99,18 @@ def test_on_rung_0_each_pcd_loss_runs_exactly_as_its_prt_loss_so_its_run_is_rela
                                        truth=TRUTH, simulator=simulator, progress=io.StringIO(),
                                        labels={**labels, "loss": loss})
             logs[loss] = pd.read_csv(tmp_path / loss / "log.csv").drop(columns="wall_s")
-        pd.testing.assert_frame_equal(logs[pcd], logs[prt], check_exact=True)
+        # the same numbers up to the order of the simulator's parallel sums (the last bit of a gradient)
+        pd.testing.assert_frame_equal(logs[pcd], logs[prt], check_exact=False, rtol=1e-12, atol=1e-12)
         assert logs[prt].train_loss_mm.iloc[0] > 1.0  # the runs start off the truth and move
         stand_in = relabelled(summaries[prt], pcd)
         assert stand_in["loss"] == stand_in["labels"]["loss"] == pcd and stand_in["same_run_as"] == prt
-        assert {k: v for k, v in stand_in.items() if k not in ("loss", "labels", "same_run_as")} == \
-               {k: v for k, v in summaries[pcd].items() if k not in ("loss", "labels", "wall_s")} | \
-               {"wall_s": summaries[prt]["wall_s"]}
+        unlabelled = ("loss", "labels", "same_run_as", "wall_s")
+        assert {k: v for k, v in stand_in.items() if k not in unlabelled} == \
+               {k: v for k, v in summaries[prt].items() if k not in unlabelled}
+        ran, stood_in = _leaves(summaries[pcd], unlabelled), _leaves(summaries[prt], unlabelled)
+        floats = [k for k, v in ran.items() if isinstance(v, float)]
+        assert {k: v for k, v in ran.items() if k not in floats} == {k: v for k, v in stood_in.items() if k not in floats}
+        assert [ran[k] for k in floats] == pytest.approx([stood_in[k] for k in floats], rel=1e-12, abs=1e-12)
     with pytest.raises(ValueError, match="only an R0 run of 'prt_emd'"):
         relabelled(summaries["prt_cd"], "pcd_emd")
     with pytest.raises(ValueError, match="this is a R1 run"):
