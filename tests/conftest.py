@@ -27,6 +27,27 @@ def shared(relative: str) -> Path:
     return path
 
 
+def leaves(value, path: str = "") -> dict:
+    """The numbers and strings of a nested dict/list structure (a run summary, a log), keyed by their path
+    (``best/parameters/E``)."""
+    if isinstance(value, dict):
+        return {k: v for key, item in value.items() for k, v in leaves(item, f"{path}/{key}").items()}
+    if isinstance(value, list):
+        return {k: v for n, item in enumerate(value) for k, v in leaves(item, f"{path}/{n}").items()}
+    return {path: value}
+
+
+def assert_same_numbers(ran, expected, rel: float = 1e-12) -> None:
+    """``ran`` and ``expected`` have the same structure, the same strings and integers, and the same floats up
+    to ``rel``: two simulations of the same inputs differ in the last bit of a gradient, since the order of
+    the simulator's parallel sums is not fixed."""
+    ran, expected = leaves(ran), leaves(expected)
+    assert ran.keys() == expected.keys()
+    floats = [k for k, v in expected.items() if isinstance(v, float)]
+    assert {k: v for k, v in ran.items() if k not in floats} == {k: v for k, v in expected.items() if k not in floats}
+    assert [ran[k] for k in floats] == pytest.approx([expected[k] for k in floats], rel=rel, abs=rel, nan_ok=True)
+
+
 LONGEST_FIRST = ("test_workflow", "test_real_workflow")
 """The test files that run whole workflows (the tiny twin's; the real clay's smoke), started first so that the
 other workers are not left waiting for them at the end."""

@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import assert_same_numbers
 from dpsi.datapoint import Datapoint
 from dpsi.effectors import by_name
 from dpsi.heightmap import height_map, heightmap_distance_mm
@@ -74,20 +75,6 @@ def test_rung_0_recovers_young_modulus_and_yield_stress_from_50_percent_off(rung
     assert summary["relative_error"]["yield_stress"] < 0.10
 
 
-def _leaves(summary: dict, left_out) -> dict:
-    """The numbers and strings of a run summary, keyed by their path (``best/parameters/E``)."""
-    def walk(value, path):
-        if isinstance(value, dict):
-            for key, item in value.items():
-                yield from walk(item, f"{path}/{key}")
-        elif isinstance(value, list):
-            for k, item in enumerate(value):
-                yield from walk(item, f"{path}/{k}")
-        else:
-            yield path, value
-    return dict(item for key, value in summary.items() if key not in left_out for item in walk(value, key))
-
-
 def test_on_rung_0_each_pcd_loss_runs_exactly_as_its_prt_loss_so_its_run_is_relabelled(rung0, tmp_path):
     simulator, training, validation = rung0
     start = TRUTH.replace(E=0.5 * TRUTH.E, yield_stress=1.5 * TRUTH.yield_stress)
@@ -107,10 +94,8 @@ def test_on_rung_0_each_pcd_loss_runs_exactly_as_its_prt_loss_so_its_run_is_rela
         unlabelled = ("loss", "labels", "same_run_as", "wall_s")
         assert {k: v for k, v in stand_in.items() if k not in unlabelled} == \
                {k: v for k, v in summaries[prt].items() if k not in unlabelled}
-        ran, stood_in = _leaves(summaries[pcd], unlabelled), _leaves(summaries[prt], unlabelled)
-        floats = [k for k, v in ran.items() if isinstance(v, float)]
-        assert {k: v for k, v in ran.items() if k not in floats} == {k: v for k, v in stood_in.items() if k not in floats}
-        assert [ran[k] for k in floats] == pytest.approx([stood_in[k] for k in floats], rel=1e-12, abs=1e-12)
+        assert_same_numbers({k: v for k, v in summaries[pcd].items() if k not in unlabelled},
+                            {k: v for k, v in summaries[prt].items() if k not in unlabelled})
     with pytest.raises(ValueError, match="only an R0 run of 'prt_emd'"):
         relabelled(summaries["prt_cd"], "pcd_emd")
     with pytest.raises(ValueError, match="this is a R1 run"):

@@ -347,20 +347,22 @@ def _replay(path: Path, state: dict, adam: Adam, initial: Parameters) -> list[di
 
 
 def _resume(path: Path, fingerprint: dict, key: str, fresh: Callable[[], Adam], initial: Parameters,
-            restart: bool, note: Callable[[str], None]) -> tuple[Adam, list[dict]]:
-    """The optimiser and rows of the run's stored state at ``path`` (a ``fresh`` optimiser and no rows if
-    there is none); ``restart``: discard a state that cannot be resumed, saying why with ``note``, instead
-    of refusing it."""
+            restart: bool, note: Callable[[str], None]) -> tuple[Adam, list[dict], dict | None]:
+    """The optimiser, rows and uncertainty block (None if not measured) of the run's stored state at
+    ``path`` (a ``fresh`` optimiser, no rows and None if there is none); ``restart``: discard a state that
+    cannot be resumed, saying why with ``note``, instead of refusing it."""
     try:
         state = _load_state(path, fingerprint, key)
         adam = fresh()
-        return adam, _replay(path, state, adam, initial) if state else []
+        if not state:
+            return adam, [], None
+        return adam, _replay(path, state, adam, initial), state.get("uncertainty")
     except IdentificationError as err:
         if not restart:
             raise
         note(f"starting afresh: {err}")
         path.unlink()
-        return fresh(), []
+        return fresh(), [], None
 
 
 def _save_state(path: Path, fingerprint: dict, key: str, adam: Adam, rows: list[dict],
@@ -448,7 +450,7 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
     with (claimed(out_dir, files, "dpsi identify", progress, adopt=_is_state) as out_dir,
           Progress(iterations, f"identify L{level} {loss} seed {seed}", progress) as bar):
         state_file = out_dir / STATE_FILE
-        adam, rows = _resume(state_file, fingerprint, key, lambda: Adam.for_level(initial, level, held), initial,
+        adam, rows, block = _resume(state_file, fingerprint, key, lambda: Adam.for_level(initial, level, held), initial,
                              restart_if_different, bar.message)
         if rows and rows[-1]["iteration"] > iterations:
             raise IdentificationError(f"{state_file} already has {rows[-1]['iteration']} iterations, "
@@ -468,7 +470,7 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
             metrics, val_skipped = validation(simulator, validation_set, params, trained.finals)
             rows.append(_row(len(rows), params, trained.loss_mm, trained.gradient, trained.skipped, metrics,
                              val_skipped, time.perf_counter() - start))
-            _save_state(state_file, fingerprint, key, adam, rows)
+            _save_state(state_file, fingerprint, key, adam, rows, block)
             row = rows[-1]
             bar.update(row["iteration"], f"loss {row['train_loss_mm']:.1f} mm, val height map "
                                          f"{row['val_heightmap_mm']:.1f} mm, skipped {row['skipped']}, "
@@ -477,7 +479,6 @@ def identify(out_dir: str | Path, level: int, loss: str, training: Sequence[Data
             pd.DataFrame(rows, columns=list(COLUMNS)).to_csv(tmp, index=False)
         summary = summarise(rows, fingerprint, iterations, truth, labels, select)
         if uncertainty and summary["best"] is not None:
-            block = (_load_state(state_file, fingerprint, key) or {}).get("uncertainty")
             if not block or block["iteration"] != summary["best"]["iteration"]:
                 bar.message(f"measuring what the data determine at iteration {summary['best']['iteration']}")
                 block = {"iteration": summary["best"]["iteration"]}
