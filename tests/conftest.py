@@ -2,8 +2,10 @@
 
 import fcntl
 import os
+import shlex
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -48,15 +50,30 @@ def assert_same_numbers(ran, expected, rel: float = 1e-12) -> None:
     assert [ran[k] for k in floats] == pytest.approx([expected[k] for k in floats], rel=rel, abs=rel, nan_ok=True)
 
 
-LONGEST_FIRST = ("test_workflow", "test_real_workflow")
-"""The test files that run whole workflows (the tiny twin's; the real clay's smoke), started first so that the
-other workers are not left waiting for them at the end."""
+LONGEST_FIRST = ("test_real_workflow",)
+"""The test file that runs a whole workflow without the tiny run (the real clay's smoke), started first so that
+the other workers are not left waiting for it at the end."""
+
+TINY_RUN_FIRST = ("test_workflow",)
+"""Of the test files that read the tiny run (collected last, see :func:`tiny_run`), those to start first."""
+
+
+def _needs_tiny_run(item) -> bool:
+    return "tiny_run" in getattr(item, "fixturenames", ())
 
 
 def pytest_collection_modifyitems(items):
-    items.sort(key=lambda item: (LONGEST_FIRST.index(item.module.__name__)
-                                 if getattr(item, "module", None) and item.module.__name__ in LONGEST_FIRST
-                                 else len(LONGEST_FIRST)))
+    """Orders the test files: the long whole-workflow file first, then the rest, and last the files that read
+    the tiny run, so that the workers run everything else while the tiny run is being made; within a file the
+    tests that do not read it come first."""
+    late_files = {item.module.__name__ for item in items if _needs_tiny_run(item)}
+
+    def rank(item):
+        name = item.module.__name__ if getattr(item, "module", None) else ""
+        if name in late_files:
+            return 2 + (TINY_RUN_FIRST.index(name) if name in TINY_RUN_FIRST else len(TINY_RUN_FIRST)), name
+        return (0 if name in LONGEST_FIRST else 1), ""
+    items.sort(key=lambda item: (rank(item), _needs_tiny_run(item)))
 
 
 def pytest_xdist_auto_num_workers(config):
@@ -70,30 +87,54 @@ def snakemake(workdir, *args, config=TINY):
                           capture_output=True, text=True)
 
 
-@pytest.fixture(scope="session")
-def tiny_run(tmp_path_factory):
-    """`tables` and `figures` (the analyses included) on the tiny twin, every job submitted through the
-    generic cluster executor, two at a time, so that nothing can rely on shared process state. Made once per test session:
-    pytest-xdist's workers share it (the first to need it makes it, under a lock). With the environment
-    variable DPSI_TINY_RUN set to a folder, the run completes that folder instead of a new one (for working
-    on one analysis without rerunning the rest)."""
-    if "DPSI_TINY_RUN" in os.environ:
-        return _complete_tiny_run(Path(os.environ["DPSI_TINY_RUN"]))
-    if "PYTEST_XDIST_WORKER" not in os.environ:
-        return _complete_tiny_run(tmp_path_factory.mktemp("workflow"))
-    session = tmp_path_factory.getbasetemp().parent  # this session's folder, shared by its workers
+TINY_TARGETS = ("tables", "figures")
+
+
+def _tiny_run_command(workdir: Path) -> list[str]:
+    """`tables` and `figures` (the analyses included) on the tiny twin in ``workdir``, two jobs at a time."""
+    return [*SNAKEMAKE, "--directory", str(workdir), "--configfile", str(TINY), "--jobs", "2", *TINY_TARGETS]
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _tiny_run_in_background(request, tmp_path_factory):
+    """The folder of this session's tiny run (None if no collected test reads it): started in the background as
+    the session begins, by the first of pytest-xdist's workers (under a lock), so that the workers run the other
+    tests meanwhile. Its worker waits for it at the end of the session."""
+    if "DPSI_TINY_RUN" in os.environ or not any(_needs_tiny_run(item) for item in request.session.items):
+        yield None
+        return
+    base = tmp_path_factory.getbasetemp()
+    session = base.parent if "PYTEST_XDIST_WORKER" in os.environ else base  # shared by the workers
+    workdir, process = session / "tiny-workflow", None
     with open(session / "tiny-workflow.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        workdir, done = session / "tiny-workflow", session / "tiny-workflow.done"
-        if not done.exists():
-            workdir.mkdir(exist_ok=True)
-            _complete_tiny_run(workdir)
-            done.touch()
-    return workdir
+        if not workdir.exists():
+            workdir.mkdir()
+            # the exit status goes to a file of its own, written once the run has ended
+            script = (f"{shlex.join(_tiny_run_command(workdir))} > {shlex.quote(str(workdir))}.log 2>&1; "
+                      f"echo $? > {shlex.quote(str(workdir))}.rc.tmp && mv {shlex.quote(str(workdir))}.rc.tmp "
+                      f"{shlex.quote(str(workdir))}.rc")
+            process = subprocess.Popen(["bash", "-c", script])
+    yield workdir
+    if process is not None:
+        process.wait()
 
 
-def _complete_tiny_run(workdir: Path) -> Path:
-    run = snakemake(workdir, "--executor", "cluster-generic", "--cluster-generic-submit-cmd", "bash",
-                    "--jobs", "2", "--latency-wait", "5", "--seconds-between-status-checks", "1", "tables", "figures")
-    assert run.returncode == 0, (run.stdout + run.stderr)[-4000:]
+@pytest.fixture(scope="session")
+def tiny_run(_tiny_run_in_background):
+    """The tiny twin's `tables` and `figures`, made once per test session (in the background from its start) and
+    shared by the workers. Every job runs in a process of its own, as on a cluster; .ci/run then runs the
+    workflow through SLURM for real. With the environment variable DPSI_TINY_RUN set to a folder, the run
+    completes that folder instead (for working on one analysis without rerunning the rest)."""
+    if "DPSI_TINY_RUN" in os.environ:
+        workdir = Path(os.environ["DPSI_TINY_RUN"])
+        run = subprocess.run(_tiny_run_command(workdir), capture_output=True, text=True)
+        assert run.returncode == 0, (run.stdout + run.stderr)[-4000:]
+        return workdir
+    workdir = _tiny_run_in_background
+    status = Path(f"{workdir}.rc")
+    while not status.exists():
+        time.sleep(1)
+    log = Path(f"{workdir}.log").read_text()
+    assert status.read_text().strip() == "0", log[-4000:]
     return workdir
