@@ -11,6 +11,7 @@ import sys
 import pandas as pd
 import pytest
 import yaml
+from snakemake.settings.types import MaxJobsPerTimespan
 
 from conftest import ROOT, TINY, snakemake
 
@@ -52,9 +53,11 @@ def test_slurm_profile_takes_partition_and_account_from_sbatch_variables_and_sha
 
 def test_workflow_profile_selects_the_greedy_scheduler_and_leaves_resources_to_rules_and_cluster_profiles():
     """Snakemake loads profiles/default beside --profile profiles/slurm, each of its top-level keys
-    replacing the other's: default-resources there would drop the cluster's partition and account."""
+    replacing the other's: default-resources there would drop the cluster's partition and account. Its rate
+    limit's timespan is how often Snakemake re-runs job selection while it waits: not every second."""
     profile = yaml.safe_load((ROOT / "profiles" / "default" / "config.yaml").read_text())
     assert profile["scheduler"] == "greedy"
+    assert MaxJobsPerTimespan.parse_choice(profile["max-jobs-per-timespan"]).timespan >= 60
     assert "default-resources" not in profile and "set-resources" not in profile
     slurm = yaml.safe_load((ROOT / "profiles" / "slurm" / "config.yaml").read_text())
     assert not set(profile) & set(slurm)
