@@ -65,7 +65,8 @@ def _needs_tiny_run(item) -> bool:
 def pytest_collection_modifyitems(items):
     """Orders the test files: the long whole-workflow file first, then the rest, and last the files that read
     the tiny run, so that the workers run everything else while the tiny run is being made; within a file the
-    tests that do not read it come first."""
+    tests that do not read it come first. (pytest-xdist keeps this order only with --no-loadscope-reorder, as
+    pyproject.toml sets it; by default it hands out the files with the most tests first.)"""
     late_files = {item.module.__name__ for item in items if _needs_tiny_run(item)}
 
     def rank(item):
