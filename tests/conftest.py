@@ -82,18 +82,18 @@ def pytest_xdist_auto_num_workers(config):
     return max(1, min(4, os.cpu_count() or 1))
 
 
+def snakemake_command(workdir, *args, config=TINY) -> list[str]:
+    """The command line of Snakemake on the project's Snakefile in ``workdir`` with ``config``."""
+    return [*SNAKEMAKE, "--directory", str(workdir), "--configfile", str(config), *args]
+
+
 def snakemake(workdir, *args, config=TINY):
     """Run Snakemake on the project's Snakefile in ``workdir`` with ``config``."""
-    return subprocess.run([*SNAKEMAKE, "--directory", str(workdir), "--configfile", str(config), *args],
-                          capture_output=True, text=True)
+    return subprocess.run(snakemake_command(workdir, *args, config=config), capture_output=True, text=True)
 
 
-TINY_TARGETS = ("tables", "figures")
-
-
-def _tiny_run_command(workdir: Path) -> list[str]:
-    """`tables` and `figures` (the analyses included) on the tiny twin in ``workdir``, two jobs at a time."""
-    return [*SNAKEMAKE, "--directory", str(workdir), "--configfile", str(TINY), "--jobs", "2", *TINY_TARGETS]
+TINY_RUN = ("--jobs", "2", "tables", "figures")
+"""`tables` and `figures` (the analyses included) on the tiny twin, two jobs at a time."""
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -112,9 +112,9 @@ def _tiny_run_in_background(request, tmp_path_factory):
         if not workdir.exists():
             workdir.mkdir()
             # the exit status goes to a file of its own, written once the run has ended
-            script = (f"{shlex.join(_tiny_run_command(workdir))} > {shlex.quote(str(workdir))}.log 2>&1; "
-                      f"echo $? > {shlex.quote(str(workdir))}.rc.tmp && mv {shlex.quote(str(workdir))}.rc.tmp "
-                      f"{shlex.quote(str(workdir))}.rc")
+            out = shlex.quote(str(workdir))
+            script = (f"{shlex.join(snakemake_command(workdir, *TINY_RUN))} > {out}.log 2>&1; "
+                      f"echo $? > {out}.rc.tmp && mv {out}.rc.tmp {out}.rc")
             process = subprocess.Popen(["bash", "-c", script])
     yield workdir
     if process is not None:
@@ -129,7 +129,7 @@ def tiny_run(_tiny_run_in_background):
     completes that folder instead (for working on one analysis without rerunning the rest)."""
     if "DPSI_TINY_RUN" in os.environ:
         workdir = Path(os.environ["DPSI_TINY_RUN"])
-        run = subprocess.run(_tiny_run_command(workdir), capture_output=True, text=True)
+        run = snakemake(workdir, *TINY_RUN)
         assert run.returncode == 0, (run.stdout + run.stderr)[-4000:]
         return workdir
     workdir = _tiny_run_in_background
